@@ -1,0 +1,1 @@
+"""solarnav calib layer."""

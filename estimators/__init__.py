@@ -1,0 +1,1 @@
+"""solarnav estimators layer."""

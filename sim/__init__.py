@@ -1,0 +1,1 @@
+"""solarnav sim layer."""
