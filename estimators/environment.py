@@ -1,0 +1,156 @@
+"""Environment models shared by the estimators and the simulator: gravity, ISA atmosphere, the earth's magnetic
+field (World Magnetic Model), the sun's direction (NREL SPA) and geodetic <-> local NED conversion.
+
+Frames: local NED (north, east, down) at a reference point; the down axis is -(altitude - reference altitude) so that
+GPS and barometric heights stay consistent (math note 1.5).
+"""
+
+from __future__ import annotations
+
+import warnings
+from datetime import datetime
+from functools import lru_cache
+
+import numpy as np
+import pandas as pd
+import pvlib
+import pymap3d
+from pygeomag import GeoMag
+
+#: PX4's standard gravity [m/s^2].
+STANDARD_GRAVITY_M_S2 = 9.80665
+#: ISA sea-level temperature [K], lapse rate [K/m] and the exponent g0 M / (R L) of the barometric formula.
+ISA_T0_K = 288.15
+ISA_LAPSE_K_M = 0.0065
+ISA_EXPONENT = STANDARD_GRAVITY_M_S2 * 0.0289644 / (8.3144598 * ISA_LAPSE_K_M)
+ISA_P0_PA = 101325.0
+#: Specific gas constant of dry air [J/(kg K)].
+R_DRY_AIR = 287.0531
+#: Sun elevation below which photocell measurements are not used [deg].
+MIN_SUN_ELEVATION_DEG = 5.0
+
+
+def local_gravity_m_s2(lat_deg, alt_m):
+    """Normal gravity [m/s^2] on the WGS-84 ellipsoid (Somigliana) with a free-air height correction.
+
+    Parameters
+    ----------
+    lat_deg : numeric
+        Geodetic latitude [deg], positive north.
+    alt_m : numeric
+        Height above the ellipsoid / MSL [m] (the difference is irrelevant at this precision).
+    """
+    s2 = np.sin(np.radians(lat_deg)) ** 2
+    return 9.7803253359 * (1 + 0.00193185265241 * s2) / np.sqrt(1 - 0.00669437999013 * s2) - 3.086e-6 * alt_m
+
+
+def isa_pressure_pa(alt_m, qnh_pa=ISA_P0_PA):
+    """Static pressure [Pa] at ISA altitude ``alt_m`` [m] for sea-level pressure ``qnh_pa`` [Pa]."""
+    return qnh_pa * (1.0 - ISA_LAPSE_K_M * np.asarray(alt_m, dtype=float) / ISA_T0_K) ** ISA_EXPONENT
+
+
+def isa_altitude_m(pressure_pa, qnh_pa=ISA_P0_PA):
+    """ISA altitude [m] from static pressure [Pa] (inverse of :func:`isa_pressure_pa`; PX4's baro_alt_meter)."""
+    ratio = np.asarray(pressure_pa, dtype=float) / qnh_pa
+    return ISA_T0_K / ISA_LAPSE_K_M * (1.0 - ratio ** (1.0 / ISA_EXPONENT))
+
+
+def air_density_kg_m3(pressure_pa, temp_c):
+    """Dry-air density [kg/m^3] from static pressure [Pa] and temperature [degC]."""
+    return np.asarray(pressure_pa, dtype=float) / (R_DRY_AIR * (np.asarray(temp_c, dtype=float) + 273.15))
+
+
+def decimal_year(when: datetime | pd.Timestamp) -> float:
+    """Decimal year of a (UTC) date, as the WMM expects it."""
+    stamp = pd.Timestamp(when)
+    if stamp.tzinfo is not None:
+        stamp = stamp.tz_convert("UTC").tz_localize(None)
+    start = pd.Timestamp(year=stamp.year, month=1, day=1)
+    end = pd.Timestamp(year=stamp.year + 1, month=1, day=1)
+    return stamp.year + (stamp - start) / (end - start)
+
+
+@lru_cache(maxsize=8)
+def _geomag_for_year(year: int) -> GeoMag:
+    # WMM coefficient sets are 5-year epochs; pygeomag picks the set covering the year.
+    clamped = min(max(year, 2010), 2029)
+    return GeoMag(base_year=clamped)
+
+
+def earth_field_ned_gauss(lat_deg: float, lon_deg: float, alt_m: float, when) -> np.ndarray:
+    """Main geomagnetic field vector in local NED [gauss] from the World Magnetic Model.
+
+    Parameters
+    ----------
+    lat_deg, lon_deg : float
+        Geodetic position [deg] (north, east positive).
+    alt_m : float
+        Altitude [m].
+    when : datetime-like or float
+        Date (UTC) or decimal year.
+
+    Returns
+    -------
+    numpy.ndarray, shape (3,)
+        (north, east, down) field [gauss]; 1 gauss = 1e5 nT.
+    """
+    year = float(when) if isinstance(when, (int, float)) else decimal_year(when)
+    geomag = _geomag_for_year(int(year))
+    with warnings.catch_warnings():
+        # Outside a model's 5-year lifespan the field is extrapolated (error grows ~100 nT/yr): acceptable here.
+        warnings.simplefilter("ignore")
+        result = geomag.calculate(glat=float(lat_deg), glon=float(lon_deg), alt=float(alt_m) / 1000.0, time=year,
+                                  allow_date_outside_lifespan=True)
+    return np.array([result.x, result.y, result.z]) * 1e-5
+
+
+def sun_direction_ned(times_utc, lat_deg, lon_deg, alt_m, pressure_pa=None, temp_c=None):
+    """Unit vector towards the sun in local NED and its apparent elevation (NREL SPA via pvlib).
+
+    Parameters
+    ----------
+    times_utc : pandas.DatetimeIndex
+        Time stamps, timezone-aware UTC (or naive, taken as UTC).
+    lat_deg, lon_deg, alt_m : numeric or array-like
+        Observer position [deg, deg, m]; scalars or arrays of the same length as ``times_utc``.
+    pressure_pa : numeric, optional
+        Static pressure [Pa] for refraction; ISA at ``alt_m`` when omitted.
+    temp_c : numeric, optional
+        Air temperature [degC] for refraction; 12 degC when omitted.
+
+    Returns
+    -------
+    s_ned : numpy.ndarray, shape (N, 3)
+        (cos e cos A, cos e sin A, -sin e) with e the apparent elevation and A the azimuth east of north.
+    elevation_deg : numpy.ndarray, shape (N,)
+        Apparent (refracted) elevation [deg]; below :data:`MIN_SUN_ELEVATION_DEG` the sun is not usable.
+    """
+    times = pd.DatetimeIndex(times_utc)
+    times = times.tz_localize("UTC") if times.tz is None else times.tz_convert("UTC")
+    n = len(times)
+    pressure = isa_pressure_pa(alt_m) if pressure_pa is None else pressure_pa
+    temperature = 12.0 if temp_c is None else temp_c
+    position = pvlib.solarposition.spa_python(
+        times, np.broadcast_to(lat_deg, n), np.broadcast_to(lon_deg, n), altitude=np.broadcast_to(alt_m, n),
+        pressure=np.broadcast_to(pressure, n), temperature=np.broadcast_to(temperature, n), delta_t=None)
+    elevation_deg = position["apparent_elevation"].to_numpy(dtype=float)
+    azimuth = np.radians(position["azimuth"].to_numpy(dtype=float))
+    elevation = np.radians(elevation_deg)
+    s_ned = np.column_stack([np.cos(elevation) * np.cos(azimuth), np.cos(elevation) * np.sin(azimuth),
+                             -np.sin(elevation)])
+    return s_ned, elevation_deg
+
+
+def geodetic_to_ned(lat_deg, lon_deg, alt_m, lat0_deg, lon0_deg, alt0_m):
+    """Local NED coordinates [m] of geodetic points relative to a reference point.
+
+    North/east from the WGS-84 tangent plane (pymap3d); down = -(alt - alt0) so it matches barometric height.
+    """
+    north, east, _ = pymap3d.geodetic2ned(lat_deg, lon_deg, alt_m, lat0_deg, lon0_deg, alt0_m)
+    return np.asarray(north), np.asarray(east), -(np.asarray(alt_m, dtype=float) - alt0_m)
+
+
+def ned_to_geodetic(north_m, east_m, down_m, lat0_deg, lon0_deg, alt0_m):
+    """Geodetic latitude, longitude [deg] and altitude [m] of local NED points (inverse of :func:`geodetic_to_ned`)."""
+    lat, lon, _ = pymap3d.ned2geodetic(north_m, east_m, 0.0 * np.asarray(north_m), lat0_deg, lon0_deg, alt0_m)
+    return np.asarray(lat), np.asarray(lon), alt0_m - np.asarray(down_m, dtype=float)
