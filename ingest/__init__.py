@@ -2,7 +2,9 @@
 
 from ingest.errors import FileTooLargeError, InputError
 from ingest.flightlog import STREAM_COLUMNS, FlightLog, LogMetadata, StreamInfo
+from ingest.sun_csv import read_sun_csv, with_sun
 from ingest.sun_device import SunDevice
+from ingest.ulog import read_ulog
 
 __all__ = ["STREAM_COLUMNS", "FileTooLargeError", "FlightLog", "InputError", "LogMetadata", "StreamInfo",
-           "SunDevice"]
+           "SunDevice", "read_sun_csv", "read_ulog", "with_sun"]

@@ -7,8 +7,8 @@ Conventions (see ``docs/nomenclature.md``):
 * earth frame: local NED (north, east, down); body frame: FRD (forward, right, down).
 * quaternions: Hamilton, scalar first (w, x, y, z), rotating body FRD vectors into NED (as PX4's
   ``vehicle_attitude.q``).
-* units: SI, with the unit in every column name (``gyro_x_rad_s``, ``alt_m``), except the magnetometer which stays
-  in gauss (``mag_x_gauss``) as PX4 logs it, and angles for display which are in degrees (``roll_deg``).
+* units: SI, with the unit in every column name (``gyro_x_rad_s``, ``alt_m``), except the magnetometer which
+  stays in gauss (``mag_x_gauss``) as PX4 logs it, and angles for display which are in degrees (``roll_deg``).
 
 A stream a log lacks is absent from :attr:`FlightLog.streams`; it is never filled with zeros.
 """
@@ -26,10 +26,11 @@ STREAM_COLUMNS: dict[str, tuple[str, ...]] = {
     "imu": ("gyro_x_rad_s", "gyro_y_rad_s", "gyro_z_rad_s", "accel_x_m_s2", "accel_y_m_s2", "accel_z_m_s2"),
     # Magnetometer [gauss], body FRD, calibrated as logged.
     "mag": ("mag_x_gauss", "mag_y_gauss", "mag_z_gauss"),
-    # Barometer: altitude above MSL from the ISA model [m], static pressure [Pa], temperature [degC] (may be NaN).
+    # Barometer: altitude above MSL from the ISA model [m], static pressure [Pa], temperature [degC]
+    # (pressure and temperature may be NaN).
     "baro": ("alt_m", "pressure_pa", "temp_c"),
-    # GPS receiver: WGS-84 lat/lon [deg], altitude above MSL [m], NED velocity [m/s], accuracies [m], fix type,
-    # and ``time_utc_s`` (UTC, unix seconds; NaN when the receiver gave none).
+    # GPS receiver: WGS-84 lat/lon [deg], altitude above MSL [m], NED velocity [m/s], accuracies [m],
+    # fix type, and ``time_utc_s`` (UTC, unix seconds; NaN when the receiver gave none).
     "gps": ("lat_deg", "lon_deg", "alt_m", "vn_m_s", "ve_m_s", "vd_m_s", "eph_m", "epv_m", "fix_type",
             "time_utc_s"),
     # Airspeed: indicated and true airspeed [m/s].
@@ -50,7 +51,8 @@ STREAM_COLUMNS: dict[str, tuple[str, ...]] = {
 
 #: Optional extra columns some streams carry when the log has them.
 OPTIONAL_COLUMNS: dict[str, tuple[str, ...]] = {
-    # ``sample_time_s``: the sensor's own sample time (PX4 ``timestamp_sample``) on the log clock, when logged.
+    # ``sample_time_s``: the sensor's own sample time (PX4 ``timestamp_sample``) on the log clock, when
+    # logged.
     "imu": ("dt_s",),
     "gps": ("sample_time_s", "speed_accuracy_m_s", "satellites_used"),
     "onboard_wind": ("wind_n_var_m2_s2", "wind_e_var_m2_s2"),
@@ -144,7 +146,8 @@ class FlightLog:
     Attributes
     ----------
     streams : dict of str -> pandas.DataFrame
-        Keys from :data:`STREAM_COLUMNS`; each frame indexed by ``time_s`` [s, log clock], columns as listed there.
+        Keys from :data:`STREAM_COLUMNS`; each frame indexed by ``time_s`` [s, log clock], columns as listed
+        there.
     meta : LogMetadata
         Log-level facts and the per-stream :class:`StreamInfo`.
     """
@@ -165,7 +168,7 @@ class FlightLog:
                            f"(has: {', '.join(sorted(self.streams))})") from None
 
     def utc(self, time_s: np.ndarray | float) -> pd.DatetimeIndex:
-        """UTC time stamps for log-clock times ``time_s`` [s]; raises ValueError when the log has no GPS time."""
+        """UTC time stamps for log-clock times ``time_s`` [s]; ValueError when the log has no GPS time."""
         if self.meta.utc_offset_s is None:
             raise ValueError(f"log {self.meta.source!r} has no GPS UTC time")
         seconds = np.atleast_1d(np.asarray(time_s, dtype=float)) + self.meta.utc_offset_s

@@ -19,7 +19,8 @@ def euler_to_matrix(roll_rad, pitch_rad, yaw_rad) -> np.ndarray:
         [cp * sy, sr * sp * sy + cr * cy, cr * sp * sy - sr * cy],
         [-sp, sr * cp, cr * cp],
     ]
-    return np.moveaxis(np.array([[np.asarray(v, dtype=float) for v in row] for row in rows]), (0, 1), (-2, -1))
+    matrix = np.array([[np.asarray(v, dtype=float) for v in row] for row in rows])
+    return np.moveaxis(matrix, (0, 1), (-2, -1))
 
 
 def quat_to_matrix(q) -> np.ndarray:

@@ -1,9 +1,9 @@
 """Geometry of the 7-photocell sun device (seed 003).
 
 The device is a frustum: cell 1 on the top face (outward normal straight up; device z points down, so
-n1 = (0, 0, -1)), cells 2..7 on the six side faces at device azimuths 0, 60, ..., 300 deg, each side face tilted
-``tilt_deg`` from the bottom plane: n_i = (sin a cos az_i, sin a sin az_i, -cos a). The device frame is mounted
-on the body by the rotation ``mount_rpy_deg`` (device -> body FRD, ZYX Euler, identity by default).
+n1 = (0, 0, -1)), cells 2..7 on the six side faces at device azimuths 0, 60, ..., 300 deg, each side face
+tilted ``tilt_deg`` from the bottom plane: n_i = (sin a cos az_i, sin a sin az_i, -cos a). The device frame is
+mounted on the body by the rotation ``mount_rpy_deg`` (device -> body FRD, ZYX Euler, identity by default).
 """
 
 from __future__ import annotations
@@ -37,7 +37,8 @@ class SunDevice:
 
     def __post_init__(self):
         if len(self.azimuths_deg) != N_CELLS - 1:
-            raise ValueError(f"azimuths_deg must list {N_CELLS - 1} side-cell azimuths, got {len(self.azimuths_deg)}")
+            raise ValueError(f"azimuths_deg must list {N_CELLS - 1} side-cell azimuths, "
+                             f"got {len(self.azimuths_deg)}")
         if not 0.0 < self.tilt_deg < 90.0:
             raise ValueError(f"tilt_deg must be in (0, 90) deg, got {self.tilt_deg}")
         if len(self.mount_rpy_deg) != 3:
