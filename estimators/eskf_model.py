@@ -1,0 +1,398 @@
+"""Model of the full-state indirect filter: nominal kinematics, error-state Jacobians and measurement models.
+
+Error-state (multiplicative) EKF after Sola 2017 ("local", right-perturbation convention), design note section 5.
+
+Nominal state ``x`` (flat float64 vector, indices ``X_*``):
+
+======  =====  ===========================================================
+slice   unit   meaning
+======  =====  ===========================================================
+p       m      position NED relative to the origin (down = -(alt - alt0))
+v       m/s    ground velocity NED
+q       -      attitude quaternion (w, x, y, z), Hamilton, body FRD -> NED
+b_g     rad/s  gyro bias (body)
+b_a     m/s^2  accelerometer bias (body)
+w       m/s    wind (north, east): velocity of the air mass
+b_m     gauss  magnetometer hard-iron bias (body)
+======  =====  ===========================================================
+
+Error state ``dx`` (indices ``E_*``): ``(dp, dv, dtheta, db_g, db_a, dw, db_m)`` with the truth
+``p = p_hat + dp``, ``v = v_hat + dv``, ``R = R_hat Exp(dtheta)`` (``dtheta``: small rotation in BODY axes),
+``b = b_hat + db``, ``w = w_hat + dw``.
+
+IMU model: ``gyro = omega + b_g + n_g``, ``accel = R^T (a - g_n) + b_a + n_a`` with ``g_n = (0, 0, +g)``.
+Each IMU sample is held constant over its interval ``dt`` (zero-order hold).
+
+Every function here is a small ``numba`` kernel; finite differences appear only in the tests.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+# Nominal state layout.
+X_P = 0
+X_V = 3
+X_Q = 6
+X_BG = 10
+X_BA = 13
+X_W = 16
+X_BM = 18
+NX = 21
+
+# Error state layout (see ``estimators.full_state_indirect.ERROR_STATES`` for units and sigmas).
+E_P = 0
+E_V = 3
+E_TH = 6
+E_BG = 9
+E_BA = 12
+E_W = 15
+E_BM = 17
+NE = 20
+
+_SMALL_ANGLE_RAD = 1e-6
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# Rotation helpers (Hamilton quaternions, scalar first)
+# ----------------------------------------------------------------------------------------------------------------
+@njit(cache=True)
+def skew(v):
+    """Cross-product matrix [v]x with [v]x a = v x a, shape (3, 3)."""
+    out = np.zeros((3, 3))
+    out[0, 1] = -v[2]
+    out[0, 2] = v[1]
+    out[1, 0] = v[2]
+    out[1, 2] = -v[0]
+    out[2, 0] = -v[1]
+    out[2, 1] = v[0]
+    return out
+
+
+@njit(cache=True)
+def quat_multiply(a, b):
+    """Hamilton product a (x) b of (w, x, y, z) quaternions."""
+    out = np.empty(4)
+    out[0] = a[0] * b[0] - a[1] * b[1] - a[2] * b[2] - a[3] * b[3]
+    out[1] = a[0] * b[1] + a[1] * b[0] + a[2] * b[3] - a[3] * b[2]
+    out[2] = a[0] * b[2] - a[1] * b[3] + a[2] * b[0] + a[3] * b[1]
+    out[3] = a[0] * b[3] + a[1] * b[2] - a[2] * b[1] + a[3] * b[0]
+    return out
+
+
+@njit(cache=True)
+def quat_exp(rotvec_rad):
+    """Unit quaternion Exp(phi) = (cos(|phi|/2), sin(|phi|/2) phi/|phi|) of a rotation vector [rad]."""
+    angle = np.sqrt(rotvec_rad[0] ** 2 + rotvec_rad[1] ** 2 + rotvec_rad[2] ** 2)
+    out = np.empty(4)
+    if angle < _SMALL_ANGLE_RAD:
+        out[0] = 1.0 - angle * angle / 8.0
+        scale = 0.5 - angle * angle / 48.0
+    else:
+        out[0] = np.cos(0.5 * angle)
+        scale = np.sin(0.5 * angle) / angle
+    out[1] = scale * rotvec_rad[0]
+    out[2] = scale * rotvec_rad[1]
+    out[3] = scale * rotvec_rad[2]
+    return out
+
+
+@njit(cache=True)
+def quat_to_dcm(q):
+    """Rotation matrix R(q) (maps body vectors into NED for the attitude quaternion), shape (3, 3)."""
+    w, x, y, z = q[0], q[1], q[2], q[3]
+    out = np.empty((3, 3))
+    out[0, 0] = 1.0 - 2.0 * (y * y + z * z)
+    out[0, 1] = 2.0 * (x * y - w * z)
+    out[0, 2] = 2.0 * (x * z + w * y)
+    out[1, 0] = 2.0 * (x * y + w * z)
+    out[1, 1] = 1.0 - 2.0 * (x * x + z * z)
+    out[1, 2] = 2.0 * (y * z - w * x)
+    out[2, 0] = 2.0 * (x * z - w * y)
+    out[2, 1] = 2.0 * (y * z + w * x)
+    out[2, 2] = 1.0 - 2.0 * (x * x + y * y)
+    return out
+
+
+@njit(cache=True)
+def rotvec_to_dcm(rotvec_rad):
+    """Rotation matrix Exp(phi) of a rotation vector [rad] (Rodrigues)."""
+    return quat_to_dcm(quat_exp(rotvec_rad))
+
+
+@njit(cache=True)
+def right_jacobian(rotvec_rad):
+    """Right Jacobian J_r(phi) of SO(3): Exp(phi + d) ~ Exp(phi) Exp(J_r(phi) d) for small d."""
+    angle2 = rotvec_rad[0] ** 2 + rotvec_rad[1] ** 2 + rotvec_rad[2] ** 2
+    angle = np.sqrt(angle2)
+    k = skew(rotvec_rad)
+    if angle < 1e-4:
+        c1 = 0.5 - angle2 / 24.0
+        c2 = 1.0 / 6.0 - angle2 / 120.0
+    else:
+        c1 = (1.0 - np.cos(angle)) / angle2
+        c2 = (angle - np.sin(angle)) / (angle2 * angle)
+    return np.eye(3) - c1 * k + c2 * (k @ k)
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# Propagation
+# ----------------------------------------------------------------------------------------------------------------
+@njit(cache=True)
+def propagate(x, gyro_rad_s, accel_m_s2, dt_s, gravity_m_s2, F):
+    """Advance the nominal state over one IMU interval and fill the error-state transition matrix.
+
+    Nominal (exact exponential map for the attitude, mid-interval attitude for the specific force):
+    ``q <- q (x) Exp(omega dt)``, ``a = R(q) Exp(omega dt/2) f + g_n``, ``p <- p + v dt + a dt^2/2``,
+    ``v <- v + a dt``; biases and wind are constant.
+
+    ``F`` is the exact first-order Jacobian of that discrete map with respect to the error state at the start of
+    the interval (right perturbation), so that ``dx_{k+1} = F dx_k`` to first order. The input noise enters as the
+    bias errors do (``gyro = omega + b_g + n_g``), hence the noise input matrices are the bias columns of ``F``.
+
+    Parameters
+    ----------
+    x : ndarray (NX,)
+        Nominal state, updated in place (quaternion renormalised).
+    gyro_rad_s, accel_m_s2 : ndarray (3,)
+        IMU sample, body FRD [rad/s], [m/s^2] (specific force), held over the interval.
+    dt_s : float
+        Interval [s].
+    gravity_m_s2 : float
+        Local gravity magnitude [m/s^2] (gravity points down, +NED z).
+    F : ndarray (NE, NE)
+        Output: error-state transition matrix. Only the non-identity blocks are written; the caller keeps the
+        rest at the identity (see :func:`identity_transition`).
+    """
+    omega = gyro_rad_s - x[X_BG:X_BG + 3]
+    f = accel_m_s2 - x[X_BA:X_BA + 3]
+    q = x[X_Q:X_Q + 4].copy()
+    R = quat_to_dcm(q)
+    half = omega * (0.5 * dt_s)
+    R_half = rotvec_to_dcm(half)
+    R_mid = R @ R_half
+    y = R_half @ f
+    a = R @ y
+    a[2] += gravity_m_s2
+
+    full = omega * dt_s
+    R_full_T = rotvec_to_dcm(full).T
+    J_full = right_jacobian(full)
+    J_half = right_jacobian(half)
+
+    # Derivatives of the NED acceleration a with respect to dtheta, db_g, db_a.
+    a_th = -(R @ skew(y))
+    a_bg = (R_mid @ skew(f) @ J_half) * (0.5 * dt_s)
+    a_ba = -R_mid
+    half_dt2 = 0.5 * dt_s * dt_s
+    for i in range(3):
+        F[E_P + i, E_V + i] = dt_s
+        for j in range(3):
+            F[E_P + i, E_TH + j] = a_th[i, j] * half_dt2
+            F[E_P + i, E_BG + j] = a_bg[i, j] * half_dt2
+            F[E_P + i, E_BA + j] = a_ba[i, j] * half_dt2
+            F[E_V + i, E_TH + j] = a_th[i, j] * dt_s
+            F[E_V + i, E_BG + j] = a_bg[i, j] * dt_s
+            F[E_V + i, E_BA + j] = a_ba[i, j] * dt_s
+            F[E_TH + i, E_TH + j] = R_full_T[i, j]
+            F[E_TH + i, E_BG + j] = -J_full[i, j] * dt_s
+
+    for i in range(3):
+        x[X_P + i] += x[X_V + i] * dt_s + a[i] * half_dt2
+        x[X_V + i] += a[i] * dt_s
+    q_new = quat_multiply(q, quat_exp(full))
+    q_new /= np.sqrt(np.sum(q_new * q_new))
+    x[X_Q:X_Q + 4] = q_new
+
+
+@njit(cache=True)
+def identity_transition():
+    """An (NE, NE) identity to be filled by :func:`propagate` (its off-identity pattern never changes)."""
+    return np.eye(NE)
+
+
+@njit(cache=True)
+def process_noise(F, gyro_var_rad2_s2, accel_var_m2_s4, random_walk_var, dt_s, Q):
+    """Discrete process noise of one IMU interval.
+
+    ``Q = F_bg diag(sigma_g^2) F_bg^T + F_ba diag(sigma_a^2) F_ba^T + diag(random_walk_var) dt`` where ``F_bg``,
+    ``F_ba`` are the gyro- and accelerometer-bias columns of ``F`` (the white input noise enters exactly like a
+    bias error) and ``sigma^2`` are per-sample variances of the IMU at its own rate (design note 2.2 (ii)).
+
+    Parameters
+    ----------
+    F : ndarray (NE, NE)
+        Transition matrix of the interval (:func:`propagate`).
+    gyro_var_rad2_s2, accel_var_m2_s4 : ndarray (3,)
+        Per-sample IMU noise variances [rad^2/s^2], [m^2/s^4].
+    random_walk_var : ndarray (NE,)
+        Continuous random-walk intensity per error state [unit^2/s] (zero for p, v, theta).
+    dt_s : float
+        Interval [s].
+    Q : ndarray (NE, NE)
+        Output, overwritten.
+    """
+    Q[:, :] = 0.0
+    for i in range(NE):
+        Q[i, i] = random_walk_var[i] * dt_s
+    _add_input_noise(F, E_BG, gyro_var_rad2_s2, Q)
+    _add_input_noise(F, E_BA, accel_var_m2_s4, Q)
+
+
+@njit(cache=True)
+def _add_input_noise(F, col0, var, Q):
+    """Q += F[:, col0:col0+3] diag(var) F[:, col0:col0+3]^T over the p, v, theta rows (the only non-zero ones)."""
+    for i in range(E_BG):
+        for j in range(E_BG):
+            acc = 0.0
+            for k in range(3):
+                acc += F[i, col0 + k] * var[k] * F[j, col0 + k]
+            Q[i, j] += acc
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# Injection and reset
+# ----------------------------------------------------------------------------------------------------------------
+@njit(cache=True)
+def inject(x, dx, P):
+    """Inject an estimated error into the nominal state and reset the error to zero (design note 5.4).
+
+    ``p += dp, v += dv, q <- q (x) Exp(dtheta), b += db, w += dw``; the covariance of the reset error is
+    ``G P G^T`` with ``G = blockdiag(I, I, I - [dtheta/2]x, I, ...)`` (Sola 2017 sec. 7.2). ``dx`` is zeroed.
+    """
+    for i in range(3):
+        x[X_P + i] += dx[E_P + i]
+        x[X_V + i] += dx[E_V + i]
+        x[X_BG + i] += dx[E_BG + i]
+        x[X_BA + i] += dx[E_BA + i]
+        x[X_BM + i] += dx[E_BM + i]
+    x[X_W] += dx[E_W]
+    x[X_W + 1] += dx[E_W + 1]
+    q = quat_multiply(x[X_Q:X_Q + 4], quat_exp(dx[E_TH:E_TH + 3]))
+    x[X_Q:X_Q + 4] = q / np.sqrt(np.sum(q * q))
+
+    G = np.eye(3) - 0.5 * skew(dx[E_TH:E_TH + 3])
+    n = P.shape[0]
+    block = np.empty(3)
+    for j in range(n):  # rows of the theta block: P[th, :] <- G P[th, :]
+        for i in range(3):
+            block[i] = G[i, 0] * P[E_TH, j] + G[i, 1] * P[E_TH + 1, j] + G[i, 2] * P[E_TH + 2, j]
+        P[E_TH:E_TH + 3, j] = block
+    for i in range(n):  # columns: P[:, th] <- P[:, th] G^T
+        for j in range(3):
+            block[j] = P[i, E_TH] * G[j, 0] + P[i, E_TH + 1] * G[j, 1] + P[i, E_TH + 2] * G[j, 2]
+        P[i, E_TH:E_TH + 3] = block
+    dx[:] = 0.0
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# Measurement models: each returns h(x) and writes the row H = dh/d(dx) into ``H`` (length NE, zeroed first)
+# ----------------------------------------------------------------------------------------------------------------
+@njit(cache=True)
+def h_height(x, H):
+    """Height above the origin [m]: ``h = -p_d``. Used for the barometer (after its offset) and GPS altitude."""
+    H[:] = 0.0
+    H[E_P + 2] = -1.0
+    return -x[X_P + 2]
+
+
+@njit(cache=True)
+def h_gps_position(x, lever_arm_b_m, axis, H):
+    """GPS antenna position [m] NED, component ``axis``: ``h = p + R l_b``.
+
+    ``H_dp = e_axis^T``, ``H_dtheta = -e_axis^T R [l_b]x``.
+    """
+    H[:] = 0.0
+    R = quat_to_dcm(x[X_Q:X_Q + 4])
+    H[E_P + axis] = 1.0
+    h_th = -(R @ skew(lever_arm_b_m))
+    for j in range(3):
+        H[E_TH + j] = h_th[axis, j]
+    return x[X_P + axis] + R[axis, 0] * lever_arm_b_m[0] + R[axis, 1] * lever_arm_b_m[1] \
+        + R[axis, 2] * lever_arm_b_m[2]
+
+
+@njit(cache=True)
+def h_gps_velocity(x, gyro_rad_s, lever_arm_b_m, axis, H):
+    """GPS antenna velocity [m/s] NED, component ``axis``: ``h = v + R (omega x l_b)``, ``omega = gyro - b_g``.
+
+    ``H_dv = e_axis^T``, ``H_dtheta = -e_axis^T R [omega x l_b]x``, ``H_dbg = e_axis^T R [l_b]x``.
+    """
+    H[:] = 0.0
+    R = quat_to_dcm(x[X_Q:X_Q + 4])
+    omega = gyro_rad_s - x[X_BG:X_BG + 3]
+    lever_velocity = np.cross(omega, lever_arm_b_m)
+    H[E_V + axis] = 1.0
+    h_th = -(R @ skew(lever_velocity))
+    h_bg = R @ skew(lever_arm_b_m)
+    for j in range(3):
+        H[E_TH + j] = h_th[axis, j]
+        H[E_BG + j] = h_bg[axis, j]
+    return x[X_V + axis] + R[axis, 0] * lever_velocity[0] + R[axis, 1] * lever_velocity[1] \
+        + R[axis, 2] * lever_velocity[2]
+
+
+@njit(cache=True)
+def _air_velocity_ned(x):
+    """Air-relative velocity v - (w_n, w_e, 0) [m/s] NED (the wind has no vertical component)."""
+    air = x[X_V:X_V + 3].copy()
+    air[0] -= x[X_W]
+    air[1] -= x[X_W + 1]
+    return air
+
+
+@njit(cache=True)
+def h_airspeed(x, H):
+    """True airspeed [m/s]: ``h = |v - w|`` (pitot aligned with the air flow).
+
+    ``H_dv = (v - w)^T / V_a``, ``H_dw = -(v - w)_{n,e}^T / V_a``; zero row when ``V_a`` is ~0.
+    """
+    H[:] = 0.0
+    air = _air_velocity_ned(x)
+    airspeed = np.sqrt(np.sum(air * air))
+    if airspeed > 1e-3:
+        for j in range(3):
+            H[E_V + j] = air[j] / airspeed
+        H[E_W] = -air[0] / airspeed
+        H[E_W + 1] = -air[1] / airspeed
+    return airspeed
+
+
+@njit(cache=True)
+def h_sideslip(x, H):
+    """Lateral body air velocity [m/s] (zero-sideslip pseudo-measurement, fixed-wing): ``h = e2^T R^T (v - w)``.
+
+    ``H_dv = e2^T R^T``, ``H_dtheta = e2^T [R^T (v - w)]x``, ``H_dw = -e2^T R^T[:, 0:2]``.
+    """
+    H[:] = 0.0
+    R = quat_to_dcm(x[X_Q:X_Q + 4])
+    air_b = R.T @ _air_velocity_ned(x)
+    # e2^T [a]x = (a_z, 0, -a_x).
+    H[E_TH] = air_b[2]
+    H[E_TH + 2] = -air_b[0]
+    for j in range(3):
+        H[E_V + j] = R[j, 1]
+    H[E_W] = -R[0, 1]
+    H[E_W + 1] = -R[1, 1]
+    return air_b[1]
+
+
+@njit(cache=True)
+def h_body_vector(x, ref_ned, axis, with_mag_bias, H):
+    """A known NED vector seen in the body, component ``axis``: ``h = R^T r_n (+ b_m)``.
+
+    Magnetometer (``r_n`` = earth field [gauss], ``with_mag_bias``) or sun direction (unit vector).
+    ``H_dtheta = e_axis^T [R^T r_n]x``, ``H_dbm = e_axis^T`` with the bias.
+    """
+    H[:] = 0.0
+    R = quat_to_dcm(x[X_Q:X_Q + 4])
+    body = R.T @ ref_ned
+    k = skew(body)
+    for j in range(3):
+        H[E_TH + j] = k[axis, j]
+    value = body[axis]
+    if with_mag_bias:
+        H[E_BM + axis] = 1.0
+        value += x[X_BM + axis]
+    return value

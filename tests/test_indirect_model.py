@@ -1,0 +1,252 @@
+"""Error-state model of the full-state indirect filter: F and every H against finite differences.
+
+The error is defined by the right perturbation R = R_hat Exp(dtheta) (body axes); other states are additive.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from estimators import eskf_model as m
+
+GRAVITY_M_S2 = 9.80665
+
+
+def random_state(rng: np.random.Generator) -> np.ndarray:
+    """A non-trivial nominal state: attitude anywhere, 15 m/s flight, biases, wind, mag bias."""
+    x = np.zeros(m.NX)
+    x[m.X_P:m.X_P + 3] = rng.normal(0.0, 50.0, 3)
+    x[m.X_V:m.X_V + 3] = rng.normal(0.0, 8.0, 3)
+    quat_xyzw = Rotation.random(random_state=rng).as_quat()
+    x[m.X_Q:m.X_Q + 4] = np.roll(quat_xyzw, 1)
+    x[m.X_BG:m.X_BG + 3] = rng.normal(0.0, 0.02, 3)
+    x[m.X_BA:m.X_BA + 3] = rng.normal(0.0, 0.3, 3)
+    x[m.X_W:m.X_W + 2] = rng.normal(0.0, 4.0, 2)
+    x[m.X_BM:m.X_BM + 3] = rng.normal(0.0, 0.05, 3)
+    return x
+
+
+def boxplus(x: np.ndarray, dx: np.ndarray) -> np.ndarray:
+    """x (+) dx through the filter's own injection (P is a dummy)."""
+    out = x.copy()
+    m.inject(out, dx.copy(), np.eye(m.NE))
+    return out
+
+
+def boxminus(x1: np.ndarray, x0: np.ndarray) -> np.ndarray:
+    """The error dx with x1 = x0 (+) dx (attitude: Log(R0^T R1), body axes)."""
+    dx = np.zeros(m.NE)
+    dx[m.E_P:m.E_P + 3] = x1[m.X_P:m.X_P + 3] - x0[m.X_P:m.X_P + 3]
+    dx[m.E_V:m.E_V + 3] = x1[m.X_V:m.X_V + 3] - x0[m.X_V:m.X_V + 3]
+    r0 = Rotation.from_quat(np.roll(x0[m.X_Q:m.X_Q + 4], -1))
+    r1 = Rotation.from_quat(np.roll(x1[m.X_Q:m.X_Q + 4], -1))
+    dx[m.E_TH:m.E_TH + 3] = (r0.inv() * r1).as_rotvec()
+    dx[m.E_BG:m.E_BG + 3] = x1[m.X_BG:m.X_BG + 3] - x0[m.X_BG:m.X_BG + 3]
+    dx[m.E_BA:m.E_BA + 3] = x1[m.X_BA:m.X_BA + 3] - x0[m.X_BA:m.X_BA + 3]
+    dx[m.E_W:m.E_W + 2] = x1[m.X_W:m.X_W + 2] - x0[m.X_W:m.X_W + 2]
+    dx[m.E_BM:m.E_BM + 3] = x1[m.X_BM:m.X_BM + 3] - x0[m.X_BM:m.X_BM + 3]
+    return dx
+
+
+def propagated(x: np.ndarray, gyro: np.ndarray, accel: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    out = x.copy()
+    F = m.identity_transition()
+    m.propagate(out, gyro, accel, dt, GRAVITY_M_S2, F)
+    return out, F
+
+
+def numeric_jacobian(fun, x: np.ndarray, n_out: int, step: float = 1e-6) -> np.ndarray:
+    """Central differences of ``fun(x (+) dx)`` with respect to dx."""
+    jac = np.zeros((n_out, m.NE))
+    for j in range(m.NE):
+        dx = np.zeros(m.NE)
+        dx[j] = step
+        jac[:, j] = (fun(boxplus(x, dx)) - fun(boxplus(x, -dx))) / (2 * step)
+    return jac
+
+
+def assert_jacobian_close(analytic: np.ndarray, numeric: np.ndarray, rtol: float = 1e-6) -> None:
+    """Elementwise |A - N| <= rtol * max(|N|, 1) (relative, with an absolute floor for near-zero entries)."""
+    scale = np.maximum(np.abs(numeric), 1.0)
+    err = np.abs(analytic - numeric) / scale
+    worst = np.unravel_index(np.argmax(err), err.shape)
+    assert err.max() <= rtol, f"worst entry {worst}: analytic {analytic[worst]}, numeric {numeric[worst]}"
+
+
+@pytest.fixture(params=range(4))
+def rng(request) -> np.random.Generator:
+    return np.random.default_rng(1000 + request.param)
+
+
+def test_rotation_helpers_match_scipy(rng):
+    rotvec = rng.normal(0.0, 1.0, 3)
+    q = m.quat_exp(rotvec)
+    expected = Rotation.from_rotvec(rotvec)
+    np.testing.assert_allclose(m.quat_to_dcm(q), expected.as_matrix(), atol=1e-14)
+    q2 = np.roll(Rotation.random(random_state=rng).as_quat(), 1)
+    product = m.quat_multiply(q2, q)
+    expected_product = Rotation.from_quat(np.roll(q2, -1)) * expected
+    np.testing.assert_allclose(m.quat_to_dcm(product), expected_product.as_matrix(), atol=1e-14)
+    a, b = rng.normal(size=3), rng.normal(size=3)
+    np.testing.assert_allclose(m.skew(a) @ b, np.cross(a, b), atol=1e-15)
+    # Small-angle branch continuous with the closed form.
+    tiny = np.array([3e-7, -2e-7, 1e-7])
+    np.testing.assert_allclose(m.quat_to_dcm(m.quat_exp(tiny)), Rotation.from_rotvec(tiny).as_matrix(),
+                               atol=1e-15)
+
+
+def test_right_jacobian(rng):
+    for rotvec in (rng.normal(0.0, 0.8, 3), np.array([2e-5, -1e-5, 3e-5])):
+        d = rng.normal(0.0, 1.0, 3) * 1e-7
+        lhs = Rotation.from_rotvec(rotvec + d)
+        rhs = Rotation.from_rotvec(rotvec) * Rotation.from_rotvec(m.right_jacobian(rotvec) @ d)
+        np.testing.assert_allclose((lhs.inv() * rhs).as_rotvec(), 0.0, atol=1e-13)
+
+
+@pytest.mark.parametrize("dt", [0.004, 0.02, 0.1])
+def test_transition_matches_finite_differences(rng, dt):
+    x = random_state(rng)
+    gyro = rng.normal(0.0, 1.5, 3)
+    accel = np.array([0.0, 0.0, -GRAVITY_M_S2]) + rng.normal(0.0, 3.0, 3)
+    x_next, F = propagated(x, gyro, accel, dt)
+    numeric = numeric_jacobian(lambda xp: boxminus(propagated(xp, gyro, accel, dt)[0], x_next), x, m.NE)
+    assert_jacobian_close(F, numeric, rtol=1e-6)
+
+
+def test_error_dynamics_first_order(rng):
+    """The linearised error F dx predicts the propagated error with a residual shrinking ~10x per 10x smaller dx."""
+    x = random_state(rng)
+    gyro = rng.normal(0.0, 1.0, 3)
+    accel = np.array([0.5, -0.3, -GRAVITY_M_S2]) + rng.normal(0.0, 2.0, 3)
+    x_next, F = propagated(x, gyro, accel, 0.02)
+    direction = rng.normal(0.0, 1.0, m.NE)
+    relative = []
+    for scale in (1e-2, 1e-3, 1e-4):
+        dx = direction * scale
+        actual = boxminus(propagated(boxplus(x, dx), gyro, accel, 0.02)[0], x_next)
+        relative.append(np.linalg.norm(actual - F @ dx) / np.linalg.norm(dx))
+    ratios = np.array(relative[:-1]) / np.array(relative[1:])
+    assert np.all((ratios > 7.0) & (ratios < 14.0)), relative
+
+
+def test_nominal_propagation_constant_rate_is_exact():
+    """Constant body rate and zero specific force beyond gravity: attitude follows Exp(omega t) exactly."""
+    x = np.zeros(m.NX)
+    x[m.X_Q] = 1.0
+    gyro = np.array([0.3, -0.2, 0.5])
+    accel = np.zeros(3)  # free fall
+    F = m.identity_transition()
+    for _ in range(100):
+        m.propagate(x, gyro, accel, 0.01, GRAVITY_M_S2, F)
+    np.testing.assert_allclose(m.quat_to_dcm(x[m.X_Q:m.X_Q + 4]), Rotation.from_rotvec(gyro).as_matrix(),
+                               atol=1e-12)
+    np.testing.assert_allclose(x[m.X_V:m.X_V + 3], [0.0, 0.0, GRAVITY_M_S2], atol=1e-12)
+    np.testing.assert_allclose(x[m.X_P:m.X_P + 3], [0.0, 0.0, GRAVITY_M_S2 / 2], atol=1e-12)
+
+
+def test_process_noise_is_input_noise_through_f(rng):
+    """Q equals G diag(sigma^2) G^T with G = d(next error)/d(IMU sample) by finite differences, plus the walks."""
+    x = random_state(rng)
+    gyro = rng.normal(0.0, 1.0, 3)
+    accel = np.array([0.0, 0.0, -GRAVITY_M_S2]) + rng.normal(0.0, 2.0, 3)
+    dt = 0.01
+    x_next, F = propagated(x, gyro, accel, dt)
+    step = 1e-6
+    G = np.zeros((m.NE, 6))
+    for j in range(6):
+        du = np.zeros(6)
+        du[j] = step
+        plus = propagated(x, gyro + du[:3], accel + du[3:], dt)[0]
+        minus = propagated(x, gyro - du[:3], accel - du[3:], dt)[0]
+        G[:, j] = (boxminus(plus, x_next) - boxminus(minus, x_next)) / (2 * step)
+    # The IMU sample enters exactly like minus the bias: G = -F[:, (b_g, b_a)] (bias rows excluded: noise is white).
+    G_analytic = -np.concatenate([F[:, m.E_BG:m.E_BG + 3], F[:, m.E_BA:m.E_BA + 3]], axis=1)
+    G_analytic[m.E_BG:] = 0.0
+    assert_jacobian_close(G_analytic, G, rtol=1e-6)
+    gyro_var = np.array([1e-4, 2e-4, 3e-4])
+    accel_var = np.array([1e-2, 2e-2, 4e-2])
+    walk = np.arange(m.NE) * 1e-6
+    Q = np.zeros((m.NE, m.NE))
+    m.process_noise(F, gyro_var, accel_var, walk, dt, Q)
+    expected = G_analytic @ np.diag(np.concatenate([gyro_var, accel_var])) @ G_analytic.T + np.diag(walk) * dt
+    np.testing.assert_allclose(Q, expected, rtol=1e-12, atol=1e-20)
+
+
+def test_injection_covariance_reset(rng):
+    """The reset Jacobian G: the error w.r.t. the new nominal is G (dx_true - dx_injected) to first order."""
+    x = random_state(rng)
+    dx_hat = rng.normal(0.0, 0.05, m.NE)
+    x_new = boxplus(x, dx_hat)
+    step = 1e-6
+    jac = np.zeros((m.NE, m.NE))
+    for j in range(m.NE):
+        d = np.zeros(m.NE)
+        d[j] = step
+        jac[:, j] = (boxminus(boxplus(x, dx_hat + d), x_new) - boxminus(boxplus(x, dx_hat - d), x_new)) / (2 * step)
+    P = np.eye(m.NE)
+    m.inject(x.copy(), dx_hat.copy(), P)
+    # G G^T from the injection equals jac jac^T to first order in dtheta (Sola's G is the first-order form).
+    np.testing.assert_allclose(P, jac @ jac.T, atol=np.linalg.norm(dx_hat[m.E_TH:m.E_TH + 3]) ** 2)
+
+
+def _check_h(fun, x, rtol=1e-6):
+    H = np.zeros(m.NE)
+    fun(x, H)
+    numeric = numeric_jacobian(lambda xp: np.array([fun(xp, np.zeros(m.NE))]), x, 1)[0]
+    assert_jacobian_close(H[None, :], numeric[None, :], rtol=rtol)
+
+
+def test_h_height(rng):
+    _check_h(m.h_height, random_state(rng))
+
+
+@pytest.mark.parametrize("axis", [0, 1, 2])
+def test_h_gps_position_with_lever_arm(rng, axis):
+    lever = np.array([0.3, -0.1, -0.2])
+    _check_h(lambda x, H: m.h_gps_position(x, lever, axis, H), random_state(rng))
+
+
+@pytest.mark.parametrize("axis", [0, 1, 2])
+def test_h_gps_velocity_with_lever_arm(rng, axis):
+    lever = np.array([0.3, -0.1, -0.2])
+    gyro = rng.normal(0.0, 1.0, 3)
+    _check_h(lambda x, H: m.h_gps_velocity(x, gyro, lever, axis, H), random_state(rng))
+
+
+def test_h_airspeed(rng):
+    _check_h(m.h_airspeed, random_state(rng))
+
+
+def test_h_sideslip(rng):
+    _check_h(m.h_sideslip, random_state(rng))
+
+
+@pytest.mark.parametrize("axis", [0, 1, 2])
+def test_h_magnetometer(rng, axis):
+    field = np.array([0.21, 0.01, 0.42])
+    _check_h(lambda x, H: m.h_body_vector(x, field, axis, True, H), random_state(rng))
+
+
+@pytest.mark.parametrize("axis", [0, 1, 2])
+def test_h_sun(rng, axis):
+    sun = np.array([0.3, 0.5, -0.81])
+    sun /= np.linalg.norm(sun)
+    _check_h(lambda x, H: m.h_body_vector(x, sun, axis, False, H), random_state(rng))
+
+
+def test_h_first_order(rng):
+    """Linearisation residual of the attitude-dependent models shrinks ~10x per 10x smaller error."""
+    x = random_state(rng)
+    field = np.array([0.21, 0.01, 0.42])
+    models = [m.h_sideslip, lambda xx, H: m.h_body_vector(xx, field, 1, True, H),
+              lambda xx, H: m.h_gps_position(xx, np.array([0.5, 0.2, -0.3]), 0, H)]
+    direction = rng.normal(0.0, 1.0, m.NE)
+    for fun in models:
+        H = np.zeros(m.NE)
+        h0 = fun(x, H)
+        residual = [abs(fun(boxplus(x, direction * s), np.zeros(m.NE)) - h0 - H @ direction * s) / s
+                    for s in (1e-2, 1e-3, 1e-4)]
+        ratios = np.array(residual[:-1]) / np.array(residual[1:])
+        assert np.all((ratios > 7.0) & (ratios < 14.0)), residual
