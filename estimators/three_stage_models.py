@@ -1,0 +1,484 @@
+"""Models of the three-stage series estimator (Guo et al. 2019 sec. 3.1, corrected; math note section 3).
+
+Every stage is written as small numba functions over float64 arrays: the state derivative ``f``, its Jacobian
+``A = df/dx``, the input-noise Jacobian ``G = df/du``, the measurement model ``h`` and its Jacobian ``C = dh/dx``.
+Analytic Jacobians only; ``tests/test_three_stage.py`` checks each against central finite differences.
+
+Frames and units: NED earth frame, FRD body frame, ZYX Euler angles (roll phi, pitch theta, yaw psi) [rad], body
+rates (p, q, r) [rad/s], specific force [m/s^2] (``(0, 0, -g)`` level at rest), speeds [m/s], positions [m].
+The stage states are laid out in the tables :data:`STAGE1_STATES`, :data:`STAGE2_STATES`,
+:data:`STAGE3_FW_STATES` and :data:`STAGE3_MC_STATES`; :func:`initial_covariance` and :func:`process_noise_psd`
+build P0 and the continuous process-noise density from them.
+
+Stages
+------
+1. roll/pitch: x = (phi, theta), u = (p, q, r, V_a); z = accelerometer (f_x, f_y, f_z). Airspeed form (eq 20/21
+   corrected, centripetal term from V_b = V_a (c_th, 0, s_th)) or the general form h = C_bn (a_n - g_n) with a
+   GPS-derived acceleration a_n (a_n = 0: gravity only, the multicopter / no-airspeed model, math note 7.1).
+2. heading: x = psi, u = (phi, theta, q, r); z = a unit reference vector in body axes (magnetometer vs WMM field,
+   or the photocell sun vector vs the SPA sun direction): h = C_bn(phi, theta, psi) v_n (eq 24/25 corrected).
+3. navigation, fixed-wing: x = (p_n, p_e, V_g, chi, w_n, w_e), u = (V_a, q, r, phi, theta, psi) (eq 26-33
+   corrected); multicopter / no-airspeed: x = (p_n, p_e, v_n, v_e) driven by the NED acceleration (math note 3.4).
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+from numba import njit
+
+#: Ground speed below which the course is undefined and the 1/V_g terms are frozen [m/s] (math note 3.3, 7.5).
+MIN_GROUND_SPEED_M_S = 3.0
+
+
+class StateSpec(NamedTuple):
+    """One row of a stage's state table.
+
+    Attributes
+    ----------
+    name : str
+        State name with its unit suffix.
+    unit : str
+        Unit of the state.
+    sigma0 : float
+        Initial standard deviation [unit].
+    sigma_process : float
+        Random-walk process-noise density [unit / sqrt(s)] (model error beyond the input noise).
+    """
+
+    name: str
+    unit: str
+    sigma0: float
+    sigma_process: float
+
+
+#: Stage 1 (roll, pitch). Process noise covers the residual gyro bias drift after the stationary-segment removal.
+STAGE1_STATES = (
+    StateSpec("roll_rad", "rad", np.radians(10.0), np.radians(0.3)),
+    StateSpec("pitch_rad", "rad", np.radians(10.0), np.radians(0.3)),
+)
+#: Stage 2 (heading).
+STAGE2_STATES = (
+    StateSpec("yaw_rad", "rad", np.radians(30.0), np.radians(0.3)),
+)
+#: Stage 3, fixed-wing mode (math note 3.3). V_g and chi random walks stand for the unmodelled longitudinal
+#: acceleration and turn-rate errors of the coordinated-turn model.
+STAGE3_FW_STATES = (
+    StateSpec("pn_m", "m", 5.0, 0.3),
+    StateSpec("pe_m", "m", 5.0, 0.3),
+    StateSpec("vg_m_s", "m/s", 2.0, 0.5),
+    StateSpec("chi_rad", "rad", np.radians(20.0), np.radians(3.0)),
+    StateSpec("wind_n_m_s", "m/s", 3.0, 0.02),
+    StateSpec("wind_e_m_s", "m/s", 3.0, 0.02),
+)
+#: Stage 3, multicopter / no-airspeed mode (math note 3.4). Velocity process noise covers the accelerometer bias.
+STAGE3_MC_STATES = (
+    StateSpec("pn_m", "m", 5.0, 0.1),
+    StateSpec("pe_m", "m", 5.0, 0.1),
+    StateSpec("vn_m_s", "m/s", 1.0, 0.3),
+    StateSpec("ve_m_s", "m/s", 1.0, 0.3),
+)
+
+
+def initial_covariance(table: tuple[StateSpec, ...]) -> np.ndarray:
+    """P0 = diag(sigma0^2) of a state table, shape (n, n)."""
+    return np.diag([spec.sigma0 ** 2 for spec in table])
+
+
+def process_noise_psd(table: tuple[StateSpec, ...]) -> np.ndarray:
+    """Continuous process-noise density Qc = diag(sigma_process^2) [unit^2 / s], shape (n, n); Q_d += Qc dt."""
+    return np.diag([spec.sigma_process ** 2 for spec in table])
+
+
+def state_index(table: tuple[StateSpec, ...], name: str) -> int:
+    """Index of the state ``name`` in ``table`` (ValueError naming the table's states when absent)."""
+    names = [spec.name for spec in table]
+    if name not in names:
+        raise ValueError(f"no state {name!r}; states are {names}")
+    return names.index(name)
+
+
+# --------------------------------------------------------------------------------------------------------------
+# Shared attitude helpers
+# --------------------------------------------------------------------------------------------------------------
+
+
+@njit(cache=True)
+def rotation_nb(phi, theta, psi):
+    """R_nb for ZYX Euler angles [rad] (body FRD -> NED), shape (3, 3)."""
+    cph, sph = np.cos(phi), np.sin(phi)
+    cth, sth = np.cos(theta), np.sin(theta)
+    cps, sps = np.cos(psi), np.sin(psi)
+    r = np.empty((3, 3))
+    r[0, 0] = cth * cps
+    r[0, 1] = sph * sth * cps - cph * sps
+    r[0, 2] = cph * sth * cps + sph * sps
+    r[1, 0] = cth * sps
+    r[1, 1] = sph * sth * sps + cph * cps
+    r[1, 2] = cph * sth * sps - sph * cps
+    r[2, 0] = -sth
+    r[2, 1] = sph * cth
+    r[2, 2] = cph * cth
+    return r
+
+
+@njit(cache=True)
+def body_vector_and_euler_jacobian(v_n, phi, theta, psi):
+    """A NED vector in body axes, h = C_bn v_n, and its Jacobian dh/d(phi, theta, psi) = [h]x W(Theta).
+
+    Parameters
+    ----------
+    v_n : ndarray, shape (3,)
+        Vector in NED [any unit].
+    phi, theta, psi : float
+        ZYX Euler angles [rad].
+
+    Returns
+    -------
+    h : ndarray, shape (3,)
+        The vector in body FRD [same unit].
+    jac : ndarray, shape (3, 3)
+        Columns dh/dphi, dh/dtheta, dh/dpsi (math note 1.1 identity d(R^T a)/dTheta = [R^T a]x W).
+    """
+    r = rotation_nb(phi, theta, psi)
+    h = r.T @ v_n
+    cph, sph = np.cos(phi), np.sin(phi)
+    cth, sth = np.cos(theta), np.sin(theta)
+    w = np.array([[1.0, 0.0, -sth], [0.0, cph, sph * cth], [0.0, -sph, cph * cth]])
+    jac = np.empty((3, 3))
+    for j in range(3):
+        jac[0, j] = h[1] * w[2, j] - h[2] * w[1, j]
+        jac[1, j] = h[2] * w[0, j] - h[0] * w[2, j]
+        jac[2, j] = h[0] * w[1, j] - h[1] * w[0, j]
+    return h, jac
+
+
+@njit(cache=True)
+def euler_yaw_rate(phi, theta, q, r):
+    """psi_dot = q s_ph / c_th + r c_ph / c_th [rad/s] (third row of S(Theta); eq 22 corrected, T10)."""
+    return (q * np.sin(phi) + r * np.cos(phi)) / np.cos(theta)
+
+
+# --------------------------------------------------------------------------------------------------------------
+# Stage 1: roll and pitch
+# --------------------------------------------------------------------------------------------------------------
+
+
+@njit(cache=True)
+def stage1_f(x, rates):
+    """Euler roll/pitch rates (eq 18).
+
+    Parameters
+    ----------
+    x : ndarray, shape (2,)
+        (phi, theta) [rad].
+    rates : ndarray, shape (3,)
+        Bias-corrected body rates (p, q, r) [rad/s].
+
+    Returns
+    -------
+    ndarray, shape (2,)
+        (phi_dot, theta_dot) [rad/s].
+    """
+    sph, cph, tth = np.sin(x[0]), np.cos(x[0]), np.tan(x[1])
+    p, q, r = rates[0], rates[1], rates[2]
+    return np.array([p + (q * sph + r * cph) * tth, q * cph - r * sph])
+
+
+@njit(cache=True)
+def stage1_A(x, rates):
+    """df/dx of :func:`stage1_f`, shape (2, 2) (eq 19 corrected, T7)."""
+    sph, cph = np.sin(x[0]), np.cos(x[0])
+    tth, cth = np.tan(x[1]), np.cos(x[1])
+    q, r = rates[1], rates[2]
+    a = np.zeros((2, 2))
+    a[0, 0] = (q * cph - r * sph) * tth
+    a[0, 1] = (q * sph + r * cph) / (cth * cth)
+    a[1, 0] = -q * sph - r * cph
+    return a
+
+
+@njit(cache=True)
+def stage1_G(x):
+    """df/d(p, q, r) of :func:`stage1_f` (gyro input-noise Jacobian), shape (2, 3)."""
+    sph, cph, tth = np.sin(x[0]), np.cos(x[0]), np.tan(x[1])
+    return np.array([[1.0, sph * tth, cph * tth], [0.0, cph, -sph]])
+
+
+@njit(cache=True)
+def stage1_h_airspeed(x, rates, airspeed_m_s, gravity_m_s2):
+    """Specific force of steady flight with the centripetal term from airspeed (eq 20 corrected, T8).
+
+    Assumes u_dot = v_dot = w_dot = 0 and V_b = V_a (c_th, 0, s_th) (zero flight-path angle, no sideslip), so
+    h = omega x V_b - C_bn g_n.
+
+    Parameters
+    ----------
+    x : ndarray, shape (2,)
+        (phi, theta) [rad].
+    rates : ndarray, shape (3,)
+        Body rates (p, q, r) [rad/s].
+    airspeed_m_s : float
+        True airspeed V_a [m/s] (0 gives the gravity-only model).
+    gravity_m_s2 : float
+        Local gravity [m/s^2].
+
+    Returns
+    -------
+    ndarray, shape (3,)
+        Predicted accelerometer reading (f_x, f_y, f_z), body FRD [m/s^2].
+    """
+    sph, cph = np.sin(x[0]), np.cos(x[0])
+    sth, cth = np.sin(x[1]), np.cos(x[1])
+    p, q, r = rates[0], rates[1], rates[2]
+    va, g = airspeed_m_s, gravity_m_s2
+    return np.array([q * va * sth + g * sth,
+                     r * va * cth - p * va * sth - g * cth * sph,
+                     -q * va * cth - g * cth * cph])
+
+
+@njit(cache=True)
+def stage1_C_airspeed(x, rates, airspeed_m_s, gravity_m_s2):
+    """dh/d(phi, theta) of :func:`stage1_h_airspeed`, shape (3, 2) (eq 21)."""
+    sph, cph = np.sin(x[0]), np.cos(x[0])
+    sth, cth = np.sin(x[1]), np.cos(x[1])
+    p, q, r = rates[0], rates[1], rates[2]
+    va, g = airspeed_m_s, gravity_m_s2
+    c = np.empty((3, 2))
+    c[0, 0] = 0.0
+    c[0, 1] = (q * va + g) * cth
+    c[1, 0] = -g * cph * cth
+    c[1, 1] = -r * va * sth - p * va * cth + g * sph * sth
+    c[2, 0] = g * sph * cth
+    c[2, 1] = (q * va + g * cph) * sth
+    return c
+
+
+@njit(cache=True)
+def stage1_h_acceleration(x, yaw_rad, accel_ned_m_s2, gravity_m_s2):
+    """Specific force from a known NED acceleration, h = C_bn(phi, theta, psi) (a_n - g_n) (math note 3.1).
+
+    Parameters
+    ----------
+    x : ndarray, shape (2,)
+        (phi, theta) [rad].
+    yaw_rad : float
+        Heading estimate psi (stage 2, previous step) [rad].
+    accel_ned_m_s2 : ndarray, shape (3,)
+        Kinematic acceleration a_n (e.g. from GPS velocity) [m/s^2]; zeros give the gravity-only model.
+    gravity_m_s2 : float
+        Local gravity [m/s^2]; g_n = (0, 0, g).
+
+    Returns
+    -------
+    h : ndarray, shape (3,)
+        Predicted accelerometer reading, body FRD [m/s^2].
+    c : ndarray, shape (3, 2)
+        dh/d(phi, theta).
+    """
+    specific_n = accel_ned_m_s2.copy()
+    specific_n[2] -= gravity_m_s2
+    h, jac = body_vector_and_euler_jacobian(specific_n, x[0], x[1], yaw_rad)
+    return h, jac[:, :2].copy()
+
+
+# --------------------------------------------------------------------------------------------------------------
+# Stage 2: heading
+# --------------------------------------------------------------------------------------------------------------
+
+
+@njit(cache=True)
+def stage2_G(phi, theta):
+    """d psi_dot / d(p, q, r) (gyro input-noise Jacobian of eq 22), shape (1, 3); A = 0 (eq 23)."""
+    cth = np.cos(theta)
+    return np.array([[0.0, np.sin(phi) / cth, np.cos(phi) / cth]])
+
+
+@njit(cache=True)
+def stage2_h(yaw_rad, phi, theta, ref_n):
+    """A reference unit vector seen in body axes and its Jacobians (eq 24, eq 25 corrected, T11).
+
+    Parameters
+    ----------
+    yaw_rad : float
+        Heading state psi [rad].
+    phi, theta : float
+        Stage-1 roll and pitch [rad] (inputs).
+    ref_n : ndarray, shape (3,)
+        Reference unit vector in NED (earth magnetic field direction from WMM, or the sun direction).
+
+    Returns
+    -------
+    h : ndarray, shape (3,)
+        Predicted body-frame unit vector.
+    c : ndarray, shape (3, 1)
+        dh/dpsi = h x (-s_th, s_ph c_th, c_ph c_th).
+    j_tilt : ndarray, shape (3, 2)
+        dh/d(phi, theta), used to inflate R by the stage-1 covariance (cascade consistency, math note 3.2).
+    """
+    h, jac = body_vector_and_euler_jacobian(ref_n, phi, theta, yaw_rad)
+    return h, jac[:, 2:].copy(), jac[:, :2].copy()
+
+
+# --------------------------------------------------------------------------------------------------------------
+# Stage 3, fixed-wing mode: x = (p_n, p_e, V_g, chi, w_n, w_e)
+# --------------------------------------------------------------------------------------------------------------
+
+
+@njit(cache=True)
+def _inverse_speed(vg):
+    """(1 / max(V_g, V_min), its derivative w.r.t. V_g): the 1/V_g terms are frozen below V_min."""
+    if vg > MIN_GROUND_SPEED_M_S:
+        return 1.0 / vg, -1.0 / (vg * vg)
+    return 1.0 / MIN_GROUND_SPEED_M_S, 0.0
+
+
+@njit(cache=True)
+def stage3_fw_f(x, u, gravity_m_s2):
+    """Navigation kinematics with the coordinated-turn course model (eq 26-29 corrected, T12/T13).
+
+    Parameters
+    ----------
+    x : ndarray, shape (6,)
+        (p_n [m], p_e [m], V_g [m/s], chi [rad], w_n [m/s], w_e [m/s]).
+    u : ndarray, shape (6,)
+        (V_a [m/s], q [rad/s], r [rad/s], phi [rad], theta [rad], psi [rad]).
+    gravity_m_s2 : float
+        Local gravity [m/s^2].
+
+    Returns
+    -------
+    ndarray, shape (6,)
+        State derivative.
+    """
+    vg, chi, wn, we = x[2], x[3], x[4], x[5]
+    va, q, r, phi, theta, psi = u[0], u[1], u[2], u[3], u[4], u[5]
+    inv_vg, _ = _inverse_speed(vg)
+    psi_dot = euler_yaw_rate(phi, theta, q, r)
+    out = np.zeros(6)
+    out[0] = vg * np.cos(chi)
+    out[1] = vg * np.sin(chi)
+    out[2] = va * psi_dot * (we * np.cos(psi) - wn * np.sin(psi)) * inv_vg
+    out[3] = gravity_m_s2 * np.tan(phi) * np.cos(chi - psi) * inv_vg
+    return out
+
+
+@njit(cache=True)
+def stage3_fw_A(x, u, gravity_m_s2):
+    """df/dx of :func:`stage3_fw_f`, shape (6, 6) (eq 30 corrected, T14)."""
+    vg, chi, wn, we = x[2], x[3], x[4], x[5]
+    va, q, r, phi, theta, psi = u[0], u[1], u[2], u[3], u[4], u[5]
+    inv_vg, dinv_vg = _inverse_speed(vg)
+    psi_dot = euler_yaw_rate(phi, theta, q, r)
+    cps, sps = np.cos(psi), np.sin(psi)
+    turn = gravity_m_s2 * np.tan(phi)
+    a = np.zeros((6, 6))
+    a[0, 2] = np.cos(chi)
+    a[0, 3] = -vg * np.sin(chi)
+    a[1, 2] = np.sin(chi)
+    a[1, 3] = vg * np.cos(chi)
+    a[2, 2] = va * psi_dot * (we * cps - wn * sps) * dinv_vg
+    a[2, 4] = -va * psi_dot * sps * inv_vg
+    a[2, 5] = va * psi_dot * cps * inv_vg
+    a[3, 2] = turn * np.cos(chi - psi) * dinv_vg
+    a[3, 3] = -turn * np.sin(chi - psi) * inv_vg
+    return a
+
+
+@njit(cache=True)
+def stage3_fw_G(x, u, gravity_m_s2):
+    """df/d(V_a, psi) of :func:`stage3_fw_f` (input-noise Jacobian for airspeed and stage-2 heading), (6, 2)."""
+    vg, chi, wn, we = x[2], x[3], x[4], x[5]
+    va, q, r, phi, theta, psi = u[0], u[1], u[2], u[3], u[4], u[5]
+    inv_vg, _ = _inverse_speed(vg)
+    psi_dot = euler_yaw_rate(phi, theta, q, r)
+    cps, sps = np.cos(psi), np.sin(psi)
+    g = np.zeros((6, 2))
+    g[2, 0] = psi_dot * (we * cps - wn * sps) * inv_vg
+    g[2, 1] = -va * psi_dot * (wn * cps + we * sps) * inv_vg
+    g[3, 1] = gravity_m_s2 * np.tan(phi) * np.sin(chi - psi) * inv_vg
+    return g
+
+
+@njit(cache=True)
+def stage3_fw_h_wind(x, air_speed_h_m_s, yaw_rad):
+    """Wind-triangle pseudo-measurement residual model (eq 31/32), z = (0, 0).
+
+    Parameters
+    ----------
+    x : ndarray, shape (6,)
+        Stage-3 fixed-wing state.
+    air_speed_h_m_s : float
+        Horizontal air-relative speed V_ah [m/s].
+    yaw_rad : float
+        Heading psi [rad].
+
+    Returns
+    -------
+    h : ndarray, shape (2,)
+        (V_ah c_psi + w_n - V_g c_chi, V_ah s_psi + w_e - V_g s_chi) [m/s].
+    c : ndarray, shape (2, 6)
+        dh/dx (eq 33 corrected, T15).
+    """
+    vg, chi = x[2], x[3]
+    cch, sch = np.cos(chi), np.sin(chi)
+    h = np.array([air_speed_h_m_s * np.cos(yaw_rad) + x[4] - vg * cch,
+                  air_speed_h_m_s * np.sin(yaw_rad) + x[5] - vg * sch])
+    c = np.zeros((2, 6))
+    c[0, 2] = -cch
+    c[0, 3] = vg * sch
+    c[0, 4] = 1.0
+    c[1, 2] = -sch
+    c[1, 3] = -vg * cch
+    c[1, 5] = 1.0
+    return h, c
+
+
+@njit(cache=True)
+def stage3_fw_wind_input_jacobian(air_speed_h_m_s, yaw_rad):
+    """d h_wind / d(V_ah, psi), shape (2, 2): maps airspeed and heading variances into the pseudo R."""
+    cps, sps = np.cos(yaw_rad), np.sin(yaw_rad)
+    return np.array([[cps, -air_speed_h_m_s * sps], [sps, air_speed_h_m_s * cps]])
+
+
+@njit(cache=True)
+def stage3_fw_h_gps_velocity(x):
+    """GPS NED horizontal velocity model (v_n, v_e) = V_g (c_chi, s_chi) and its Jacobian (2, 6)."""
+    vg, chi = x[2], x[3]
+    cch, sch = np.cos(chi), np.sin(chi)
+    c = np.zeros((2, 6))
+    c[0, 2] = cch
+    c[0, 3] = -vg * sch
+    c[1, 2] = sch
+    c[1, 3] = vg * cch
+    return np.array([vg * cch, vg * sch]), c
+
+
+# --------------------------------------------------------------------------------------------------------------
+# Stage 3, multicopter / no-airspeed mode: x = (p_n, p_e, v_n, v_e)
+# --------------------------------------------------------------------------------------------------------------
+
+
+@njit(cache=True)
+def ned_acceleration(phi, theta, psi, specific_force_b, gravity_m_s2):
+    """Kinematic NED acceleration a_n = R_nb f_b + g_n [m/s^2], shape (3,), and R_nb (3, 3)."""
+    r = rotation_nb(phi, theta, psi)
+    a = r @ specific_force_b
+    a[2] += gravity_m_s2
+    return a, r
+
+
+@njit(cache=True)
+def stage3_mc_f(x, accel_ne_m_s2):
+    """Constant-acceleration kinematics (p_n, p_e, v_n, v_e)_dot = (v_n, v_e, a_n, a_e); A = [[0, I], [0, 0]]."""
+    return np.array([x[2], x[3], accel_ne_m_s2[0], accel_ne_m_s2[1]])
+
+
+@njit(cache=True)
+def stage3_mc_A():
+    """df/dx of :func:`stage3_mc_f`, shape (4, 4)."""
+    a = np.zeros((4, 4))
+    a[0, 2] = 1.0
+    a[1, 3] = 1.0
+    return a

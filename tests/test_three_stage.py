@@ -1,0 +1,257 @@
+"""Three-stage series estimator: analytic Jacobians vs finite differences, model identities."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from estimators import three_stage_models as m
+from ingest.frames import euler_to_matrix
+
+GRAVITY = 9.80665
+RTOL = 1e-6  # relative tolerance of every analytic-vs-numerical Jacobian comparison
+ATOL = 1e-8  # absolute floor for entries that are analytically zero
+N_RANDOM = 20  # random states per Jacobian
+
+
+def numerical_jacobian(fun, x, *args, step=1e-6):
+    """Central finite-difference Jacobian of ``fun(x, *args)`` w.r.t. ``x`` (the test oracle)."""
+    x = np.asarray(x, dtype=float)
+    columns = []
+    for i in range(x.size):
+        dx = np.zeros_like(x)
+        dx[i] = step
+        columns.append((np.asarray(fun(x + dx, *args)) - np.asarray(fun(x - dx, *args))) / (2 * step))
+    return np.stack(columns, axis=-1)
+
+
+def random_attitude(rng):
+    """(phi, theta, psi) [rad] away from the Euler singularity."""
+    return rng.uniform(-1.2, 1.2), rng.uniform(-1.2, 1.2), rng.uniform(-np.pi, np.pi)
+
+
+@pytest.fixture
+def rng():
+    return np.random.default_rng(20191024)
+
+
+def unit(v):
+    return v / np.linalg.norm(v)
+
+
+# ---------------------------------------------------------------- stage 1
+
+
+def test_stage1_f_is_euler_kinematics(rng):
+    """f equals the first two rows of S(Theta) omega, i.e. d/dt of roll/pitch of R_nb under body rates."""
+    for _ in range(N_RANDOM):
+        phi, theta, psi = random_attitude(rng)
+        rates = rng.normal(0, 0.5, 3)
+        dt = 1e-6
+        r0 = euler_to_matrix(phi, theta, psi)
+        wx = np.array([[0, -rates[2], rates[1]], [rates[2], 0, -rates[0]], [-rates[1], rates[0], 0]])
+        r1 = r0 @ (np.eye(3) + wx * dt)
+        phi1 = np.arctan2(r1[2, 1], r1[2, 2])
+        theta1 = -np.arcsin(r1[2, 0])
+        np.testing.assert_allclose(m.stage1_f(np.array([phi, theta]), rates),
+                                   [(phi1 - phi) / dt, (theta1 - theta) / dt], rtol=1e-4, atol=1e-5)
+
+
+def test_stage1_A_matches_finite_differences(rng):
+    for _ in range(N_RANDOM):
+        x = np.array(random_attitude(rng)[:2])
+        rates = rng.normal(0, 0.5, 3)
+        np.testing.assert_allclose(m.stage1_A(x, rates), numerical_jacobian(m.stage1_f, x, rates),
+                                   rtol=RTOL, atol=ATOL)
+
+
+def test_stage1_G_matches_finite_differences(rng):
+    for _ in range(N_RANDOM):
+        x = np.array(random_attitude(rng)[:2])
+        rates = rng.normal(0, 0.5, 3)
+        np.testing.assert_allclose(m.stage1_G(x), numerical_jacobian(lambda w, s: m.stage1_f(s, w), rates, x),
+                                   rtol=RTOL, atol=ATOL)
+
+
+def test_stage1_C_airspeed_matches_finite_differences(rng):
+    for _ in range(N_RANDOM):
+        x = np.array(random_attitude(rng)[:2])
+        rates = rng.normal(0, 0.5, 3)
+        va = rng.uniform(0, 30)
+        numerical = numerical_jacobian(m.stage1_h_airspeed, x, rates, va, GRAVITY)
+        np.testing.assert_allclose(m.stage1_C_airspeed(x, rates, va, GRAVITY), numerical, rtol=RTOL, atol=ATOL)
+
+
+def test_stage1_h_airspeed_is_steady_flight_specific_force(rng):
+    """h = omega x V_b - C_bn g_n with V_b = V_a (c_th, 0, s_th) (corrected eq 20 from corrected eq 1)."""
+    for _ in range(N_RANDOM):
+        phi, theta, psi = random_attitude(rng)
+        rates = rng.normal(0, 0.5, 3)
+        va = rng.uniform(0, 30)
+        v_b = va * np.array([np.cos(theta), 0.0, np.sin(theta)])
+        expected = np.cross(rates, v_b) - euler_to_matrix(phi, theta, psi).T @ [0.0, 0.0, GRAVITY]
+        np.testing.assert_allclose(m.stage1_h_airspeed(np.array([phi, theta]), rates, va, GRAVITY), expected,
+                                   rtol=1e-12, atol=1e-12)
+
+
+def test_stage1_acceleration_form(rng):
+    """General form: value = C_bn (a_n - g_n); Jacobian vs finite differences; a_n = 0 equals V_a = 0."""
+    for _ in range(N_RANDOM):
+        phi, theta, psi = random_attitude(rng)
+        x = np.array([phi, theta])
+        accel = rng.normal(0, 3, 3)
+        h, c = m.stage1_h_acceleration(x, psi, accel, GRAVITY)
+        expected = euler_to_matrix(phi, theta, psi).T @ (accel - [0.0, 0.0, GRAVITY])
+        np.testing.assert_allclose(h, expected, rtol=1e-12, atol=1e-12)
+        numerical = numerical_jacobian(lambda s, *a: m.stage1_h_acceleration(s, *a)[0], x, psi, accel,
+                                       GRAVITY)
+        np.testing.assert_allclose(c, numerical, rtol=RTOL, atol=ATOL)
+        h0, c0 = m.stage1_h_acceleration(x, psi, np.zeros(3), GRAVITY)
+        rates = rng.normal(0, 0.5, 3)
+        np.testing.assert_allclose(h0, m.stage1_h_airspeed(x, rates, 0.0, GRAVITY), atol=1e-12)
+        np.testing.assert_allclose(c0, m.stage1_C_airspeed(x, rates, 0.0, GRAVITY), atol=1e-12)
+
+
+# ---------------------------------------------------------------- stage 2
+
+
+def test_stage2_G_matches_finite_differences(rng):
+    for _ in range(N_RANDOM):
+        phi, theta, _ = random_attitude(rng)
+        rates = rng.normal(0, 0.5, 3)
+        numerical = numerical_jacobian(lambda w, a, b: [m.euler_yaw_rate(a, b, w[1], w[2])], rates, phi, theta)
+        np.testing.assert_allclose(m.stage2_G(phi, theta), numerical, rtol=RTOL, atol=ATOL)
+
+
+def test_stage2_h_and_jacobians(rng):
+    """h = C_bn v_n (eq 24); dh/dpsi (corrected eq 25) and dh/d(phi, theta) vs finite differences."""
+    for _ in range(N_RANDOM):
+        phi, theta, psi = random_attitude(rng)
+        ref = unit(rng.normal(size=3))
+        h, c, j_tilt = m.stage2_h(psi, phi, theta, ref)
+        np.testing.assert_allclose(h, euler_to_matrix(phi, theta, psi).T @ ref, rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(c, numerical_jacobian(lambda s, *a: m.stage2_h(s[0], *a)[0], [psi], phi, theta, ref),
+                                   rtol=RTOL, atol=ATOL)
+        numerical_tilt = numerical_jacobian(lambda s, a, v: m.stage2_h(a, s[0], s[1], v)[0], [phi, theta], psi, ref)
+        np.testing.assert_allclose(j_tilt, numerical_tilt, rtol=RTOL, atol=ATOL)
+        # the explicit corrected eq 25 of the math note (T11), row by row
+        cph, sph, cth, sth, cps, sps = (np.cos(phi), np.sin(phi), np.cos(theta), np.sin(theta), np.cos(psi),
+                                        np.sin(psi))
+        eq25 = [-cth * sps * ref[0] + cth * cps * ref[1],
+                (-sph * sth * sps - cph * cps) * ref[0] + (sph * sth * cps - cph * sps) * ref[1],
+                (-cph * sth * sps + sph * cps) * ref[0] + (cph * sth * cps + sph * sps) * ref[1]]
+        np.testing.assert_allclose(c[:, 0], eq25, rtol=1e-12, atol=1e-12)
+
+
+# ---------------------------------------------------------------- stage 3, fixed wing
+
+
+def random_fw_state(rng):
+    x = np.array([rng.normal(0, 100), rng.normal(0, 100), rng.uniform(5, 30), rng.uniform(-np.pi, np.pi),
+                  rng.normal(0, 5), rng.normal(0, 5)])
+    phi, theta, psi = random_attitude(rng)
+    u = np.array([rng.uniform(5, 30), rng.normal(0, 0.3), rng.normal(0, 0.3), phi, theta, psi])
+    return x, u
+
+
+def test_stage3_fw_A_matches_finite_differences(rng):
+    for _ in range(N_RANDOM):
+        x, u = random_fw_state(rng)
+        numerical = numerical_jacobian(m.stage3_fw_f, x, u, GRAVITY)
+        np.testing.assert_allclose(m.stage3_fw_A(x, u, GRAVITY), numerical, rtol=RTOL, atol=ATOL)
+
+
+def test_stage3_fw_G_matches_finite_differences(rng):
+    for _ in range(N_RANDOM):
+        x, u = random_fw_state(rng)
+
+        def f_of_inputs(va_psi, x=x, u=u):
+            v = u.copy()
+            v[0], v[5] = va_psi
+            return m.stage3_fw_f(x, v, GRAVITY)
+
+        numerical = numerical_jacobian(f_of_inputs, u[[0, 5]])
+        np.testing.assert_allclose(m.stage3_fw_G(x, u, GRAVITY), numerical, rtol=RTOL, atol=ATOL)
+
+
+def test_stage3_fw_ground_speed_rate_is_wind_triangle_derivative(rng):
+    """V_g_dot of f equals d/dt |V_a (c_psi, s_psi) + w| with psi_dot from the gyro (eq 27)."""
+    for _ in range(N_RANDOM):
+        x, u = random_fw_state(rng)
+        va, psi = u[0], u[5]
+        wind = x[4:] * min(1.0, 0.5 * va / np.linalg.norm(x[4:]))  # keep V_g > V_min: no frozen 1/V_g
+        x[4:] = wind
+        psi_dot = m.euler_yaw_rate(u[3], u[4], u[1], u[2])
+        ground = va * np.array([np.cos(psi), np.sin(psi)]) + wind
+        x[2] = np.linalg.norm(ground)
+        dt = 1e-6
+        ground1 = va * np.array([np.cos(psi + psi_dot * dt), np.sin(psi + psi_dot * dt)]) + wind
+        expected = (np.linalg.norm(ground1) - x[2]) / dt
+        np.testing.assert_allclose(m.stage3_fw_f(x, u, GRAVITY)[2], expected, rtol=1e-4, atol=1e-6)
+
+
+def test_stage3_fw_low_speed_guard_is_consistent():
+    """Below V_min the 1/V_g factors freeze: f stays finite and A's V_g column has no 1/V_g^2 terms."""
+    x = np.array([0.0, 0.0, 0.5, 0.3, 1.0, -2.0])
+    u = np.array([12.0, 0.1, 0.2, 0.3, 0.05, 0.4])
+    np.testing.assert_allclose(m.stage3_fw_A(x, u, GRAVITY),
+                               numerical_jacobian(m.stage3_fw_f, x, u, GRAVITY), rtol=RTOL, atol=ATOL)
+    assert np.all(np.isfinite(m.stage3_fw_f(np.array([0, 0, 0.0, 0, 0, 0]), u, GRAVITY)))
+
+
+def test_stage3_fw_wind_pseudo_measurement(rng):
+    for _ in range(N_RANDOM):
+        x, u = random_fw_state(rng)
+        vah, psi = u[0], u[5]
+        _, c = m.stage3_fw_h_wind(x, vah, psi)
+        np.testing.assert_allclose(c, numerical_jacobian(lambda s, *a: m.stage3_fw_h_wind(s, *a)[0], x, vah, psi),
+                                   rtol=RTOL, atol=ATOL)
+        numerical_inputs = numerical_jacobian(lambda w, s: m.stage3_fw_h_wind(s, w[0], w[1])[0], [vah, psi], x)
+        np.testing.assert_allclose(m.stage3_fw_wind_input_jacobian(vah, psi), numerical_inputs,
+                                   rtol=RTOL, atol=ATOL)
+        # an exact wind triangle gives a zero residual
+        x[2:4] = [np.hypot(vah * np.cos(psi) + x[4], vah * np.sin(psi) + x[5]),
+                  np.arctan2(vah * np.sin(psi) + x[5], vah * np.cos(psi) + x[4])]
+        np.testing.assert_allclose(m.stage3_fw_h_wind(x, vah, psi)[0], 0.0, atol=1e-12)
+
+
+def test_stage3_fw_gps_velocity_model(rng):
+    for _ in range(N_RANDOM):
+        x, _ = random_fw_state(rng)
+        h, c = m.stage3_fw_h_gps_velocity(x)
+        np.testing.assert_allclose(h, x[2] * np.array([np.cos(x[3]), np.sin(x[3])]), rtol=1e-12)
+        np.testing.assert_allclose(c, numerical_jacobian(lambda s: m.stage3_fw_h_gps_velocity(s)[0], x),
+                                   rtol=RTOL, atol=ATOL)
+
+
+# ---------------------------------------------------------------- stage 3, multicopter
+
+
+def test_stage3_mc_A_matches_finite_differences(rng):
+    for _ in range(N_RANDOM):
+        x = rng.normal(0, 10, 4)
+        accel = rng.normal(0, 2, 2)
+        np.testing.assert_allclose(m.stage3_mc_A(), numerical_jacobian(m.stage3_mc_f, x, accel),
+                                   rtol=RTOL, atol=ATOL)
+
+
+def test_ned_acceleration_at_rest_is_zero(rng):
+    for _ in range(N_RANDOM):
+        phi, theta, psi = random_attitude(rng)
+        f_b = euler_to_matrix(phi, theta, psi).T @ [0.0, 0.0, -GRAVITY]
+        a, _ = m.ned_acceleration(phi, theta, psi, f_b, GRAVITY)
+        np.testing.assert_allclose(a, 0.0, atol=1e-12)
+
+
+# ---------------------------------------------------------------- state tables
+
+
+@pytest.mark.parametrize("table", [m.STAGE1_STATES, m.STAGE2_STATES, m.STAGE3_FW_STATES, m.STAGE3_MC_STATES])
+def test_state_tables_build_positive_definite_matrices(table):
+    p0 = m.initial_covariance(table)
+    qc = m.process_noise_psd(table)
+    assert p0.shape == qc.shape == (len(table), len(table))
+    assert np.all(np.linalg.eigvalsh(p0) > 0) and np.all(np.linalg.eigvalsh(qc) > 0)
+    assert m.state_index(table, table[-1].name) == len(table) - 1
+    with pytest.raises(ValueError, match="no state"):
+        m.state_index(table, "nope")
