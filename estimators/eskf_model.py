@@ -13,10 +13,11 @@ q       -      attitude quaternion (w, x, y, z), Hamilton, body FRD -> NED
 b_g     rad/s  gyro bias (body)
 b_a     m/s^2  accelerometer bias (body)
 w       m/s    wind (north, east): velocity of the air mass
-b_m     gauss  magnetometer hard-iron bias (body)
+b_m     -      magnetometer hard-iron bias (body), in units of the earth-field strength
+b_b     m      barometer offset: baro height - true height
 ======  =====  ===========================================================
 
-Error state ``dx`` (indices ``E_*``): ``(dp, dv, dtheta, db_g, db_a, dw, db_m)`` with the truth
+Error state ``dx`` (indices ``E_*``): ``(dp, dv, dtheta, db_g, db_a, dw, db_m, db_b)`` with the truth
 ``p = p_hat + dp``, ``v = v_hat + dv``, ``R = R_hat Exp(dtheta)`` (``dtheta``: small rotation in BODY axes),
 ``b = b_hat + db``, ``w = w_hat + dw``.
 
@@ -39,7 +40,8 @@ X_BG = 10
 X_BA = 13
 X_W = 16
 X_BM = 18
-NX = 21
+X_BB = 21
+NX = 22
 
 # Error state layout (see ``estimators.full_state_indirect.ERROR_STATES`` for units and sigmas).
 E_P = 0
@@ -49,7 +51,8 @@ E_BG = 9
 E_BA = 12
 E_W = 15
 E_BM = 17
-NE = 20
+E_BB = 20
+NE = 21
 
 _SMALL_ANGLE_RAD = 1e-6
 
@@ -213,21 +216,22 @@ def identity_transition():
 
 
 @njit(cache=True)
-def process_noise(F, gyro_var_rad2_s2, accel_var_m2_s4, random_walk_var, dt_s, Q):
+def process_noise(F, gyro_psd, accel_psd, random_walk_psd, dt_s, Q):
     """Discrete process noise of one IMU interval.
 
-    ``Q = F_bg diag(sigma_g^2) F_bg^T + F_ba diag(sigma_a^2) F_ba^T + diag(random_walk_var) dt`` where ``F_bg``,
-    ``F_ba`` are the gyro- and accelerometer-bias columns of ``F`` (the white input noise enters exactly like a
-    bias error) and ``sigma^2`` are per-sample variances of the IMU at its own rate (design note 2.2 (ii)).
+    ``Q = F_bg diag(N_g^2 / dt) F_bg^T + F_ba diag(N_a^2 / dt) F_ba^T + diag(K^2) dt`` where ``F_bg``, ``F_ba``
+    are the gyro- and accelerometer-bias columns of ``F`` (white input noise enters exactly like a bias error),
+    ``N^2 / dt`` is the variance of one IMU sample averaged over ``dt`` (math note 2.2: N^2 dt = sigma^2 dt^2) and
+    ``K`` the random-walk densities.
 
     Parameters
     ----------
     F : ndarray (NE, NE)
         Transition matrix of the interval (:func:`propagate`).
-    gyro_var_rad2_s2, accel_var_m2_s4 : ndarray (3,)
-        Per-sample IMU noise variances [rad^2/s^2], [m^2/s^4].
-    random_walk_var : ndarray (NE,)
-        Continuous random-walk intensity per error state [unit^2/s] (zero for p, v, theta).
+    gyro_psd, accel_psd : ndarray (3,)
+        Squared white-noise densities N^2 of the gyro [rad^2/s^2/Hz] and accelerometer [m^2/s^4/Hz].
+    random_walk_psd : ndarray (NE,)
+        Squared random-walk densities K^2 per error state [unit^2/s] (zero for p, v, theta).
     dt_s : float
         Interval [s].
     Q : ndarray (NE, NE)
@@ -235,9 +239,9 @@ def process_noise(F, gyro_var_rad2_s2, accel_var_m2_s4, random_walk_var, dt_s, Q
     """
     Q[:, :] = 0.0
     for i in range(NE):
-        Q[i, i] = random_walk_var[i] * dt_s
-    _add_input_noise(F, E_BG, gyro_var_rad2_s2, Q)
-    _add_input_noise(F, E_BA, accel_var_m2_s4, Q)
+        Q[i, i] = random_walk_psd[i] * dt_s
+    _add_input_noise(F, E_BG, gyro_psd / dt_s, Q)
+    _add_input_noise(F, E_BA, accel_psd / dt_s, Q)
 
 
 @njit(cache=True)
@@ -269,6 +273,7 @@ def inject(x, dx, P):
         x[X_BM + i] += dx[E_BM + i]
     x[X_W] += dx[E_W]
     x[X_W + 1] += dx[E_W + 1]
+    x[X_BB] += dx[E_BB]
     q = quat_multiply(x[X_Q:X_Q + 4], quat_exp(dx[E_TH:E_TH + 3]))
     x[X_Q:X_Q + 4] = q / np.sqrt(np.sum(q * q))
 
@@ -290,10 +295,13 @@ def inject(x, dx, P):
 # Measurement models: each returns h(x) and writes the row H = dh/d(dx) into ``H`` (length NE, zeroed first)
 # ----------------------------------------------------------------------------------------------------------------
 @njit(cache=True)
-def h_height(x, H):
-    """Height above the origin [m]: ``h = -p_d``. Used for the barometer (after its offset) and GPS altitude."""
+def h_height(x, with_baro_bias, H):
+    """Height above the origin [m]: ``h = -p_d (+ b_b)``: barometer (with its offset state) or GPS altitude."""
     H[:] = 0.0
     H[E_P + 2] = -1.0
+    if with_baro_bias:
+        H[E_BB] = 1.0
+        return x[X_BB] - x[X_P + 2]
     return -x[X_P + 2]
 
 
@@ -331,6 +339,34 @@ def h_gps_velocity(x, gyro_rad_s, lever_arm_b_m, axis, H):
         H[E_BG + j] = h_bg[axis, j]
     return x[X_V + axis] + R[axis, 0] * lever_velocity[0] + R[axis, 1] * lever_velocity[1] \
         + R[axis, 2] * lever_velocity[2]
+
+
+@njit(cache=True)
+def h_ground_speed(x, H):
+    """Horizontal ground speed [m/s] (paper-mode GPS, eq. 43 corrected): ``h = |(v_n, v_e)|``.
+
+    ``H_dv = (v_n, v_e, 0) / V_g``; zero row when ``V_g`` is ~0 (the caller skips such updates).
+    """
+    H[:] = 0.0
+    speed = np.hypot(x[X_V], x[X_V + 1])
+    if speed > 1e-3:
+        H[E_V] = x[X_V] / speed
+        H[E_V + 1] = x[X_V + 1] / speed
+    return speed
+
+
+@njit(cache=True)
+def h_course(x, H):
+    """Course over ground [rad] (paper-mode GPS): ``h = atan2(v_e, v_n)``; the caller wraps the innovation.
+
+    ``H_dv = (-v_e, v_n, 0) / V_g^2``.
+    """
+    H[:] = 0.0
+    speed2 = x[X_V] ** 2 + x[X_V + 1] ** 2
+    if speed2 > 1e-6:
+        H[E_V] = -x[X_V + 1] / speed2
+        H[E_V + 1] = x[X_V] / speed2
+    return np.arctan2(x[X_V + 1], x[X_V])
 
 
 @njit(cache=True)

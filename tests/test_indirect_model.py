@@ -25,6 +25,7 @@ def random_state(rng: np.random.Generator) -> np.ndarray:
     x[m.X_BA:m.X_BA + 3] = rng.normal(0.0, 0.3, 3)
     x[m.X_W:m.X_W + 2] = rng.normal(0.0, 4.0, 2)
     x[m.X_BM:m.X_BM + 3] = rng.normal(0.0, 0.05, 3)
+    x[m.X_BB] = rng.normal(0.0, 3.0)
     return x
 
 
@@ -47,6 +48,7 @@ def boxminus(x1: np.ndarray, x0: np.ndarray) -> np.ndarray:
     dx[m.E_BA:m.E_BA + 3] = x1[m.X_BA:m.X_BA + 3] - x0[m.X_BA:m.X_BA + 3]
     dx[m.E_W:m.E_W + 2] = x1[m.X_W:m.X_W + 2] - x0[m.X_W:m.X_W + 2]
     dx[m.E_BM:m.E_BM + 3] = x1[m.X_BM:m.X_BM + 3] - x0[m.X_BM:m.X_BM + 3]
+    dx[m.E_BB] = x1[m.X_BB] - x0[m.X_BB]
     return dx
 
 
@@ -165,12 +167,14 @@ def test_process_noise_is_input_noise_through_f(rng):
     G_analytic = -np.concatenate([F[:, m.E_BG:m.E_BG + 3], F[:, m.E_BA:m.E_BA + 3]], axis=1)
     G_analytic[m.E_BG:] = 0.0
     assert_jacobian_close(G_analytic, G, rtol=1e-6)
-    gyro_var = np.array([1e-4, 2e-4, 3e-4])
-    accel_var = np.array([1e-2, 2e-2, 4e-2])
-    walk = np.arange(m.NE) * 1e-6
+    gyro_psd = np.array([1e-4, 2e-4, 3e-4]) ** 2
+    accel_psd = np.array([1e-2, 2e-2, 4e-2]) ** 2
+    walk_psd = np.arange(m.NE) * 1e-6
     Q = np.zeros((m.NE, m.NE))
-    m.process_noise(F, gyro_var, accel_var, walk, dt, Q)
-    expected = G_analytic @ np.diag(np.concatenate([gyro_var, accel_var])) @ G_analytic.T + np.diag(walk) * dt
+    m.process_noise(F, gyro_psd, accel_psd, walk_psd, dt, Q)
+    # A density N holds per-sample variance N^2 / dt.
+    per_sample_var = np.concatenate([gyro_psd, accel_psd]) / dt
+    expected = G_analytic @ np.diag(per_sample_var) @ G_analytic.T + np.diag(walk_psd) * dt
     np.testing.assert_allclose(Q, expected, rtol=1e-12, atol=1e-20)
 
 
@@ -198,8 +202,9 @@ def _check_h(fun, x, rtol=1e-6):
     assert_jacobian_close(H[None, :], numeric[None, :], rtol=rtol)
 
 
-def test_h_height(rng):
-    _check_h(m.h_height, random_state(rng))
+@pytest.mark.parametrize("with_baro_bias", [False, True])
+def test_h_height(rng, with_baro_bias):
+    _check_h(lambda x, H: m.h_height(x, with_baro_bias, H), random_state(rng))
 
 
 @pytest.mark.parametrize("axis", [0, 1, 2])
@@ -213,6 +218,11 @@ def test_h_gps_velocity_with_lever_arm(rng, axis):
     lever = np.array([0.3, -0.1, -0.2])
     gyro = rng.normal(0.0, 1.0, 3)
     _check_h(lambda x, H: m.h_gps_velocity(x, gyro, lever, axis, H), random_state(rng))
+
+
+def test_h_ground_speed_and_course(rng):
+    _check_h(m.h_ground_speed, random_state(rng))
+    _check_h(m.h_course, random_state(rng))
 
 
 def test_h_airspeed(rng):
