@@ -1,0 +1,1 @@
+"""Subcommands of the ``solarnav`` CLI, one module each (see :mod:`app.cli`)."""
