@@ -1,0 +1,266 @@
+"""Noise, gating, initialisation and timing settings shared by the three estimators.
+
+One frozen :class:`EstimatorConfig` holds everything a replay needs besides the log; the kernels receive plain
+floats and arrays taken from it (never the object). Every default below is documented with where it comes from:
+the paper's Table 1 (sensor grades), Table 4 / eq. 51 (in-flight IMU noise), the math design note (sections 2.3,
+5.5, 7, 9) or PX4 EKF2's defaults where the paper gives nothing.
+
+Noise convention (math note 2.2, option i): IMU noise is given as a white-noise DENSITY (per sqrt(Hz)) so that the
+same numbers hold at any IMU rate; a per-sample standard deviation ``sigma`` at rate ``f_s`` relates to it by
+``density = sigma / sqrt(f_s)``. Bias and wind random walks are densities too (per sqrt(s)): the discrete
+variance added over ``dt`` is ``density**2 * dt``. Measurement noises are per-sample standard deviations.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, fields, replace
+
+from ingest.errors import InputError
+
+#: Default EKF2_GPS_DELAY of PX4 [ms], used when a log has no such parameter.
+PX4_DEFAULT_GPS_DELAY_MS = 110.0
+
+
+@dataclass(frozen=True)
+class NoiseConfig:
+    """Sensor and process noise.
+
+    Attributes
+    ----------
+    gyro_noise_rad_s_sqrt_hz : float
+        Gyro white-noise density N_g [rad/s/sqrt(Hz)]. Default 2.0e-3: the MPU6050 static density (Table 1 row
+        "0.05 deg/s-rms", about 0.005 deg/s/sqrt(Hz) = 8.7e-5 rad/s/sqrt(Hz)) is a lower bound; in flight,
+        vibration dominates (Table 4: 4-6 deg/s per sample at 50 Hz, which the math note 9.1 judges overstated
+        by about 10x in variance, i.e. ~1.6 deg/s at 50 Hz = 4e-3 rad/s/sqrt(Hz)). 2e-3 sits between that and
+        PX4 EKF2's EKF2_GYR_NOISE (0.015 rad/s per 100 Hz sample = 1.5e-3).
+    accel_noise_m_s2_sqrt_hz : float
+        Accelerometer white-noise density N_a [m/s^2/sqrt(Hz)]. Default 0.035: Table 4 / eq. 51 in-flight
+        per-sample values 0.02-0.25 m/s^2 at 50 Hz (0.003-0.035 per sqrt(Hz)); PX4 EKF2_ACC_NOISE 0.35 m/s^2 per
+        100 Hz sample = 0.035. The larger value also covers vibration on multicopters.
+    gyro_bias_rw_rad_s2_sqrt_hz : float
+        Gyro bias random walk K_g [rad/s^2/sqrt(Hz)] (process sigma of the bias states). Default 1e-4 (PX4
+        EKF2_GYR_B_NOISE 1e-3 rad/s^2 is tuned for temperature drift of a 100 Hz filter; the paper's controller is
+        at constant 25 degC, so a 10x smaller walk).
+    accel_bias_rw_m_s3_sqrt_hz : float
+        Accelerometer bias random walk K_a [m/s^3/sqrt(Hz)]. Default 1e-3 (PX4 EKF2_ACC_B_NOISE 3e-3 / 3, same
+        reasoning).
+    wind_rw_m_s_sqrt_s : float
+        Wind random walk [m/s/sqrt(s)]. Default 0.05 (math note 3.3: (0.01-0.1 m/s)^2/s; PX4 EKF2_WIND_NSD 0.05).
+    mag_bias_rw_sqrt_s : float
+        Magnetometer hard-iron bias random walk [field units/sqrt(s)] (the magnetometer is used normalised by the
+        earth-field strength, so biases are fractions of it). Default 1e-4 (PX4 EKF2_MAG_B_NOISE 1e-4 gauss/s
+        over a ~0.5 gauss field, per sqrt(s)).
+    baro_bias_rw_m_sqrt_s : float
+        Barometer bias (offset to GPS height) random walk [m/sqrt(s)]. Default 0.01 (weather/temperature drift).
+    baro_sigma_m : float
+        Barometric altitude noise [m]. Default 0.5 (Table 1: MS5611 resolution ~0.1 m, accuracy +/-1.5 mbar is a
+        slow offset handled by the bias state; PX4 EKF2_BARO_NOISE 3.5 m is for prop-wash, too loose here).
+    airspeed_sigma_m_s : float
+        True-airspeed noise [m/s]. Default 0.5 (Table 1: MPXV7002 +/-2.5 % of 2 kPa over 96 Pa dynamic pressure
+        at 12.5 m/s is far larger as an offset; as white noise PX4 EKF2_EAS_NOISE 1.4 m/s; the paper's airspeed
+        error 0.5-0.8 m/s).
+    sideslip_sigma_m_s : float
+        Zero-sideslip pseudo-measurement noise on the body-y air velocity [m/s] (math note B3: 0.5-1 m/s).
+        Without wind states it is inflated to ``sideslip_no_wind_sigma_m_s``.
+    sideslip_no_wind_sigma_m_s : float
+        Sideslip pseudo noise when no wind is estimated (math note 7.1: 2 m/s).
+    gps_pos_sigma_floor_m : float
+        Floor of the per-axis GPS horizontal position sigma [m] (math note 3.3: 0.5 m).
+    gps_hgt_sigma_floor_m : float
+        Floor of the GPS height sigma [m].
+    gps_pos_eph_scale : float
+        Per-axis horizontal sigma = ``gps_pos_eph_scale * eph`` (eph is a horizontal radial accuracy; math note
+        3.3: eph / sqrt(2)).
+    gps_vel_sigma_floor_m_s : float
+        Floor of the GPS velocity sigma [m/s] (math note 3.3: 0.1 m/s).
+    gps_vel_sigma_default_m_s : float
+        GPS velocity sigma when the receiver reports no speed accuracy [m/s] (PX4 EKF2_GPS_V_NOIS 0.3... 0.5).
+    mag_sigma : float
+        Magnetometer noise per axis in units of the field strength (math note 3.2: 0.02-0.05 for unit vectors).
+    sun_sigma_rad : float
+        Sun-vector direction noise per tangent axis [rad] (math note 8.3: a few tenths of a degree to 1 deg).
+    zero_velocity_sigma_m_s : float
+        Noise of the zero-NED-velocity pseudo-measurement used only when a log has no GPS (math note 7.3: keeps
+        tilt observable, like PX4 EKF2's fake-position fusion) [m/s].
+    """
+
+    gyro_noise_rad_s_sqrt_hz: float = 2.0e-3
+    accel_noise_m_s2_sqrt_hz: float = 0.035
+    gyro_bias_rw_rad_s2_sqrt_hz: float = 1.0e-4
+    accel_bias_rw_m_s3_sqrt_hz: float = 1.0e-3
+    wind_rw_m_s_sqrt_s: float = 0.05
+    mag_bias_rw_sqrt_s: float = 1.0e-4
+    baro_bias_rw_m_sqrt_s: float = 0.01
+    baro_sigma_m: float = 0.5
+    airspeed_sigma_m_s: float = 0.5
+    sideslip_sigma_m_s: float = 0.7
+    sideslip_no_wind_sigma_m_s: float = 2.0
+    gps_pos_sigma_floor_m: float = 0.5
+    gps_hgt_sigma_floor_m: float = 0.7
+    gps_pos_eph_scale: float = 1.0 / math.sqrt(2.0)
+    gps_vel_sigma_floor_m_s: float = 0.1
+    gps_vel_sigma_default_m_s: float = 0.3
+    mag_sigma: float = 0.03
+    sun_sigma_rad: float = math.radians(0.5)
+    zero_velocity_sigma_m_s: float = 1.0
+
+
+@dataclass(frozen=True)
+class GateConfig:
+    """Chi-square gates per sensor: a scalar update is rejected when ``|nu| / sqrt(S) > gate``.
+
+    Math note 2.3: gamma = 3..5 sigma, configurable per sensor. Pseudo-measurements (sideslip, zero velocity)
+    are never gated. ``math.inf`` disables a gate.
+
+    Attributes
+    ----------
+    baro, airspeed, gps_pos, gps_vel, mag, sun : float
+        Gate in innovation standard deviations [-].
+    """
+
+    baro: float = 5.0
+    airspeed: float = 5.0
+    gps_pos: float = 5.0
+    gps_vel: float = 5.0
+    mag: float = 5.0
+    sun: float = 5.0
+
+
+@dataclass(frozen=True)
+class InitialSigmas:
+    """Initial 1-sigma uncertainties (math note 5.5).
+
+    Attributes
+    ----------
+    position_m : float
+        Horizontal/vertical position [m] (the GPS eph is used when larger).
+    velocity_m_s : float
+        Velocity [m/s].
+    roll_pitch_deg : float
+        Roll and pitch [deg].
+    yaw_deg : float
+        Yaw with an absolute heading source [deg].
+    yaw_unaided_deg : float
+        Yaw without any absolute heading source (magnetometer, sun, onboard attitude) [deg].
+    gyro_bias_deg_s : float
+        Gyro bias [deg/s].
+    accel_bias_m_s2 : float
+        Accelerometer bias [m/s^2].
+    wind_m_s : float
+        Wind (north, east) [m/s].
+    mag_bias : float
+        Magnetometer hard-iron bias [field units].
+    baro_bias_m : float
+        Barometer bias relative to GPS height [m].
+    """
+
+    position_m: float = 3.0
+    velocity_m_s: float = 0.5
+    roll_pitch_deg: float = 2.0
+    yaw_deg: float = 10.0
+    yaw_unaided_deg: float = 30.0
+    gyro_bias_deg_s: float = 0.5
+    accel_bias_m_s2: float = 0.2
+    wind_m_s: float = 3.0
+    mag_bias: float = 0.1
+    baro_bias_m: float = 2.0
+
+
+@dataclass(frozen=True)
+class TimingConfig:
+    """Sensor timing and rates (math note 1.4, 2.1, 2.3, 3.3).
+
+    Attributes
+    ----------
+    gps_delay_s : float or None
+        GPS measurement latency [s] subtracted from the GPS sample time. None: the log's ``EKF2_GPS_DELAY``
+        parameter [ms], else :data:`PX4_DEFAULT_GPS_DELAY_MS`.
+    covariance_rate_hz : float
+        Rate at which the covariance is propagated (the state is integrated at the IMU rate; PX4 EKF2 also
+        predicts covariance at ~100 Hz). The covariance is also brought up to date before every update.
+    pseudo_rate_hz : float
+        Rate of pseudo-measurements (zero sideslip, zero velocity) [Hz] (math note 3.3 / T31: a fixed rate such
+        as the GPS rate, never every IMU step).
+    max_imu_gap_factor : float
+        An IMU interval longer than this many median periods is a gap (math note 2.1: 5).
+    still_window_s : float
+        Minimum length of the stationary window used for initial alignment [s] (math note 5.5: >= 2 s).
+    still_gyro_rad_s : float
+        Stationary when ``|gyro| <`` this [rad/s] (math note 5.5: 0.05).
+    still_accel_m_s2 : float
+        Stationary when ``| |accel| - g | <`` this [m/s^2] (math note 5.5: 0.2).
+    gps_reset_after_s : float
+        GPS continuously rejected this long -> position/velocity reset to GPS (math note 2.3: 5 s).
+    min_airspeed_m_s : float
+        Airspeed samples below this are not fused (on the ground, before launch) [m/s].
+    min_ground_speed_m_s : float
+        V_min of math note 7.5 for course updates [m/s].
+    """
+
+    gps_delay_s: float | None = None
+    covariance_rate_hz: float = 100.0
+    pseudo_rate_hz: float = 10.0
+    max_imu_gap_factor: float = 5.0
+    still_window_s: float = 2.0
+    still_gyro_rad_s: float = 0.05
+    still_accel_m_s2: float = 0.2
+    gps_reset_after_s: float = 5.0
+    min_airspeed_m_s: float = 5.0
+    min_ground_speed_m_s: float = 3.0
+
+
+@dataclass(frozen=True)
+class EstimatorConfig:
+    """Everything an estimator run needs besides the log.
+
+    Attributes
+    ----------
+    noise : NoiseConfig
+    gates : GateConfig
+    initial : InitialSigmas
+    timing : TimingConfig
+    accel_bias_states : bool
+        Estimate accelerometer biases (math note 4: on for real logs; off reproduces the paper's 14 states).
+    mag_bias_states : bool
+        Estimate magnetometer hard-iron biases when a magnetometer is fused.
+    baro_bias_state : bool
+        Estimate the barometer offset against GPS height when both are present.
+    gps_velocity_mode : str
+        ``"ned"`` (default, math note B5) or ``"paper"`` (ground speed and course, eqs 42-43 corrected).
+    """
+
+    noise: NoiseConfig = field(default_factory=NoiseConfig)
+    gates: GateConfig = field(default_factory=GateConfig)
+    initial: InitialSigmas = field(default_factory=InitialSigmas)
+    timing: TimingConfig = field(default_factory=TimingConfig)
+    accel_bias_states: bool = True
+    mag_bias_states: bool = True
+    baro_bias_state: bool = True
+    gps_velocity_mode: str = "ned"
+
+    def __post_init__(self):
+        validate_config(self)
+
+    def with_noise(self, **changes) -> EstimatorConfig:
+        """A copy with some :class:`NoiseConfig` fields replaced."""
+        return replace(self, noise=replace(self.noise, **changes))
+
+
+def validate_config(config: EstimatorConfig) -> None:
+    """Raise :class:`InputError` naming the field when a setting is not usable (negative noise, bad mode)."""
+    for section_name in ("noise", "gates", "initial", "timing"):
+        section = getattr(config, section_name)
+        for item in fields(section):
+            value = getattr(section, item.name)
+            if value is None:
+                continue
+            if not isinstance(value, (int, float)) or math.isnan(value) or value < 0:
+                raise InputError(f"must be a non-negative number, got {value!r}",
+                                 field=f"{section_name}.{item.name}")
+    for name in ("covariance_rate_hz", "pseudo_rate_hz", "max_imu_gap_factor"):
+        if not getattr(config.timing, name) > 0:
+            raise InputError("must be positive", field=f"timing.{name}")
+    if config.gps_velocity_mode not in ("ned", "paper"):
+        raise InputError(f"must be 'ned' or 'paper', got {config.gps_velocity_mode!r}",
+                         field="gps_velocity_mode")

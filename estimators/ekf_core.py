@@ -1,0 +1,302 @@
+"""Numba leaf functions shared by the three Kalman filters (math note section 2).
+
+Every function here is ``@njit(cache=True)``, works in place on preallocated float64 arrays and allocates
+nothing, so the filters' time loops can call it per sample without Python overhead. The filters own the models
+(state layout, ``f``, ``A``, ``h``, ``H``); this module owns the generic EKF algebra:
+
+* :func:`transition_matrix` -- ``F = I + A dt + (A dt)^2 / 2`` from a continuous Jacobian ``A``.
+* :func:`propagate_covariance` -- ``P <- F P F^T + Qd`` exploiting that most rows of ``F - I`` are zero
+  (bias and wind states), then symmetrised.
+* :func:`scalar_update` -- one scalar measurement in Joseph form with chi-square gating; returns the correction
+  ``dx`` (the caller adds it and wraps angles, or injects it into a nominal state), the innovation variance
+  ``S`` and the normalised innovation squared ``NIS = nu^2 / S``.
+* :func:`repair_covariance` -- symmetry, variance limits and positive definiteness (Cholesky test, eigenvalue
+  clipping only when it fails).
+* :func:`is_healthy` / :func:`reset_filter` -- divergence detection (non-finite state or covariance) and reset
+  to a safe state; the caller counts resets and reports them.
+* :func:`record_update` / :func:`record_output` -- the diagnostics and output recorders writing into
+  preallocated arrays with a counter.
+
+Diagnostics layout (one row per scalar update, :data:`DIAG_FLOAT_COLUMNS` / :data:`DIAG_INT_COLUMNS`):
+``diag_f[k] = (time_s, innovation, innovation_var, nis)`` and ``diag_i[k] = (sensor kind, component, accepted)``;
+``counter[0]`` is the number of rows written. Rows beyond the preallocated size are dropped and counted in
+``counter[1]``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+#: Columns of the float diagnostics array.
+DIAG_FLOAT_COLUMNS = ("time_s", "innovation", "innovation_var", "nis")
+#: Columns of the integer diagnostics array.
+DIAG_INT_COLUMNS = ("sensor", "component", "accepted")
+
+
+@njit(cache=True)
+def symmetrize(P):
+    """Replace ``P`` by ``(P + P^T) / 2`` in place."""
+    n = P.shape[0]
+    for i in range(n):
+        for j in range(i + 1, n):
+            v = 0.5 * (P[i, j] + P[j, i])
+            P[i, j] = v
+            P[j, i] = v
+
+
+@njit(cache=True)
+def transition_matrix(A, dt, F):
+    """Second-order transition matrix ``F = I + A dt + (A dt)^2 / 2`` (math note 2.2), written into ``F``.
+
+    Parameters
+    ----------
+    A : ndarray (n, n)
+        Continuous-time Jacobian df/dx, evaluated at the pre-step estimate.
+    dt : float
+        Step [s].
+    F : ndarray (n, n)
+        Output.
+    """
+    n = A.shape[0]
+    for i in range(n):
+        for j in range(n):
+            F[i, j] = 0.0
+    for i in range(n):
+        for k in range(n):
+            a_ik = A[i, k]
+            if a_ik == 0.0:
+                continue
+            for j in range(n):
+                F[i, j] += a_ik * A[k, j]
+    half_dt2 = 0.5 * dt * dt
+    for i in range(n):
+        for j in range(n):
+            F[i, j] = F[i, j] * half_dt2 + A[i, j] * dt
+        F[i, i] += 1.0
+
+
+@njit(cache=True)
+def propagate_covariance(P, F, Qd, work, active):
+    """``P <- F P F^T + Qd``, then symmetrised; ``P, F, Qd, work`` (n, n), ``work`` and ``active`` (n,) bool are
+    scratch.
+
+    Written as ``P + D P + P D^T + D P D^T`` with ``D = F - I``, skipping the rows of ``D`` that are zero
+    (states without dynamics), which is exact and several times cheaper for the filters' sparse ``F``.
+    """
+    n = P.shape[0]
+    # active rows of D = F - I
+    for i in range(n):
+        row_active = False
+        for j in range(n):
+            d = F[i, j] - (1.0 if i == j else 0.0)
+            if d != 0.0:
+                row_active = True
+                break
+        active[i] = row_active
+    # work = D P (zero rows where inactive)
+    for i in range(n):
+        for j in range(n):
+            work[i, j] = 0.0
+        if not active[i]:
+            continue
+        for k in range(n):
+            d = F[i, k] - (1.0 if i == k else 0.0)
+            if d == 0.0:
+                continue
+            for j in range(n):
+                work[i, j] += d * P[k, j]
+    # P += work + work^T + work D^T
+    for i in range(n):
+        for j in range(i, n):
+            v = P[i, j] + work[i, j] + work[j, i]
+            if active[i] and active[j]:
+                s = 0.0
+                for k in range(n):
+                    d = F[j, k] - (1.0 if j == k else 0.0)
+                    if d != 0.0:
+                        s += work[i, k] * d
+                v += s
+            v += 0.5 * (Qd[i, j] + Qd[j, i])
+            P[i, j] = v
+            P[j, i] = v
+
+
+@njit(cache=True)
+def scalar_update(P, H, nu, r_var, gate, dx, ph):
+    """One scalar measurement update in Joseph form with chi-square gating (math note 2.3).
+
+    Parameters
+    ----------
+    P : ndarray (n, n)
+        Prior covariance; replaced by the posterior when the update is accepted.
+    H : ndarray (n,)
+        Measurement Jacobian row dh/dx.
+    nu : float
+        Innovation ``z - h(x)`` (already wrapped for angles).
+    r_var : float
+        Measurement variance R.
+    gate : float
+        Reject when ``|nu| / sqrt(S) > gate``; ``inf`` (or <= 0) disables the gate (pseudo-measurements).
+    dx : ndarray (n,)
+        Output: the correction ``K nu`` (zeros when rejected). The caller adds it to the state.
+    ph : ndarray (n,)
+        Scratch for ``P H^T``.
+
+    Returns
+    -------
+    accepted : bool
+    S : float
+        Innovation variance ``H P H^T + R``.
+    nis : float
+        Normalised innovation squared ``nu^2 / S``.
+    """
+    n = P.shape[0]
+    for i in range(n):
+        s = 0.0
+        for j in range(n):
+            h_j = H[j]
+            if h_j != 0.0:
+                s += P[i, j] * h_j
+        ph[i] = s
+    hph = 0.0
+    for i in range(n):
+        hph += H[i] * ph[i]
+    S = hph + r_var
+    for i in range(n):
+        dx[i] = 0.0
+    if not (S > 0.0) or not math.isfinite(S) or not math.isfinite(nu):
+        return False, S, math.nan
+    nis = nu * nu / S
+    if gate > 0.0 and nis > gate * gate:
+        return False, S, nis
+    # K = P H^T / S; dx = K nu. Joseph: P+ = (I - K H) P (I - K H)^T + K R K^T, using H P = ph^T:
+    # M = P - K ph^T;  M H^T = ph - K hph;  P+ = M - (M H^T) K^T + R K K^T.
+    inv_s = 1.0 / S
+    for i in range(n):
+        dx[i] = ph[i] * inv_s  # K, turned into K nu below
+    for i in range(n):
+        k_i = dx[i]
+        mh_i = ph[i] - k_i * hph
+        for j in range(n):
+            k_j = dx[j]
+            P[i, j] = P[i, j] - k_i * ph[j] - mh_i * k_j + r_var * k_i * k_j
+    symmetrize(P)
+    for i in range(n):
+        dx[i] *= nu
+    return True, S, nis
+
+
+@njit(cache=True)
+def repair_covariance(P, min_var, max_var, work, eig_floor):
+    """Keep ``P`` a usable covariance; returns True when an eigenvalue repair was needed.
+
+    Variances below ``min_var[i]`` are raised to it (adding a diagonal term keeps P positive semi-definite);
+    variances above ``max_var[i]`` are scaled down with their row and column (correlations kept; e.g. the yaw
+    standard deviation is capped at 180 deg, math note 7.2). Then a Cholesky factorisation tests positive
+    definiteness; only when it fails, eigenvalues are clipped to ``eig_floor``.
+
+    Parameters
+    ----------
+    P : ndarray (n, n)
+    min_var, max_var : ndarray (n,)
+        Variance limits per state.
+    work : ndarray (n, n)
+        Scratch.
+    eig_floor : float
+        Smallest eigenvalue kept in a repair.
+    """
+    n = P.shape[0]
+    symmetrize(P)
+    for i in range(n):
+        if P[i, i] < min_var[i]:
+            P[i, i] = min_var[i]
+        elif P[i, i] > max_var[i]:
+            scale = math.sqrt(max_var[i] / P[i, i])
+            for j in range(n):
+                P[i, j] *= scale
+                P[j, i] *= scale
+    # Cholesky test
+    for j in range(n):
+        s = P[j, j]
+        for k in range(j):
+            s -= work[j, k] * work[j, k]
+        if not (s > 0.0):
+            break
+        d = math.sqrt(s)
+        work[j, j] = d
+        for i in range(j + 1, n):
+            t = P[i, j]
+            for k in range(j):
+                t -= work[i, k] * work[j, k]
+            work[i, j] = t / d
+    else:
+        return False
+    values, vectors = np.linalg.eigh(P)
+    for k in range(n):
+        if not (values[k] > eig_floor):
+            values[k] = eig_floor
+    for i in range(n):
+        for j in range(n):
+            s = 0.0
+            for k in range(n):
+                s += vectors[i, k] * values[k] * vectors[j, k]
+            P[i, j] = s
+    symmetrize(P)
+    return True
+
+
+@njit(cache=True)
+def is_healthy(x, P):
+    """True when the state and covariance are finite and every variance is positive."""
+    n = x.shape[0]
+    for i in range(n):
+        if not math.isfinite(x[i]) or not (P[i, i] > 0.0):
+            return False
+        for j in range(n):
+            if not math.isfinite(P[i, j]):
+                return False
+    return True
+
+
+@njit(cache=True)
+def reset_filter(x, P, x_safe, P_reset):
+    """Divergence reset: ``x <- x_safe`` (last healthy state), ``P <- P_reset`` (initial covariance)."""
+    n = x.shape[0]
+    for i in range(n):
+        x[i] = x_safe[i]
+        for j in range(n):
+            P[i, j] = P_reset[i, j]
+
+
+@njit(cache=True)
+def record_update(diag_f, diag_i, counter, time_s, sensor, component, nu, S, nis, accepted):
+    """Append one scalar update to the diagnostics arrays (``counter[0]`` rows used, ``counter[1]`` dropped)."""
+    k = counter[0]
+    if k >= diag_f.shape[0]:
+        counter[1] += 1
+        return
+    diag_f[k, 0] = time_s
+    diag_f[k, 1] = nu
+    diag_f[k, 2] = S
+    diag_f[k, 3] = nis
+    diag_i[k, 0] = sensor
+    diag_i[k, 1] = component
+    diag_i[k, 2] = 1 if accepted else 0
+    counter[0] = k + 1
+
+
+@njit(cache=True)
+def record_output(out, row, values):
+    """Write ``values`` into row ``row`` of the output array (the caller advances ``row``)."""
+    if row < out.shape[0]:
+        for j in range(values.shape[0]):
+            out[row, j] = values[j]
+
+
+@njit(cache=True)
+def wrap_pi(angle_rad):
+    """Wrap an angle [rad] to [-pi, pi)."""
+    return (angle_rad + math.pi) % (2.0 * math.pi) - math.pi

@@ -1,0 +1,801 @@
+"""Orchestration shared by the three filters: a :class:`~ingest.flightlog.FlightLog` -> the flat, time-sorted
+arrays the numba kernels loop over (math note 1.4, 2.1, 5.5 and 7).
+
+What this module decides, once, for every estimator:
+
+* **IMU rows** ``(time_s, gyro, accel)``: each ``sensor_combined`` row is a zero-order-hold rate over the interval
+  ending at its time stamp, so row ``k`` drives the propagation from ``time_s[k-1]`` to ``time_s[k]``.
+  Non-finite rows and rows whose time does not advance (duplicates) are dropped; intervals longer than
+  ``timing.max_imu_gap_factor`` median periods are reported as gaps (the filter propagates across them with the
+  held rate and the process noise of the whole gap).
+* **Measurement events** ``(time_s, kind, imu_index, values[6], variances[6])``, one row per sensor sample at the
+  sensor's own sample time (``sample_time_s`` when logged, else the row time), sorted by time; ``imu_index`` is
+  the IMU row whose interval contains the event, so the kernels propagate to the event time exactly (split dt),
+  update, and continue. Repeated samples (the sample time did not advance) are dropped. GPS sample times are
+  shifted back by the receiver latency: the log's ``EKF2_GPS_DELAY`` [ms] (PX4 EKF2 subtracts it from the GNSS
+  sample time, timestamp_sample included), else :data:`estimators.config.PX4_DEFAULT_GPS_DELAY_MS`. Output epochs
+  (``OUTPUT``) are events too, on the grid ``k / rate_hz`` of the log clock.
+* **Sensor plan**: which sensors are usable, which are skipped and why, and the degradations of math note 7
+  (no airspeed -> no wind states and no airspeed; multicopter -> no fixed-wing pseudo-measurements; no GPS ->
+  attitude and height only, with a zero-velocity pseudo-measurement keeping the tilt observable; no magnetometer
+  -> yaw dead-reckoned).
+* **Origin** (first good GPS fix, math note 1.1), the earth magnetic field there (World Magnetic Model at the
+  log's date), the barometer offset to GPS height and the **initial alignment** from the first still seconds
+  (math note 5.5).
+
+Event values per kind (unused slots are 0; variances are per component):
+
+=============  ============================================  ============================================
+kind           values                                         variances
+=============  ============================================  ============================================
+BARO           height above the origin [m]                    sigma_baro^2
+AIRSPEED       true airspeed [m/s]                            sigma_tas^2
+SIDESLIP       0 (body-y air velocity pseudo) [m/s]           sigma_beta^2
+GPS_POS        NED position of the antenna [m]                (eph*scale)^2 x2, epv^2 (floored)
+GPS_VEL        NED velocity [m/s]                             speed accuracy^2 x3 (floored)
+MAG            field in body FRD / reference strength [-]     sigma_mag^2 x3
+SUN            sun unit vector body FRD [-], then NED [-]     sigma_sun^2 (per tangent axis)
+ZERO_VELOCITY  0, 0, 0 NED velocity pseudo [m/s]             sigma_zv^2 x3
+OUTPUT         (none)                                         (none)
+=============  ============================================  ============================================
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+import pandas as pd
+
+from estimators import environment
+from estimators.config import PX4_DEFAULT_GPS_DELAY_MS, EstimatorConfig
+from ingest.errors import InputError
+from ingest.flightlog import FlightLog
+from ingest.frames import quat_to_euler
+
+# Measurement kinds: integer codes used by the kernels and in the diagnostics. The order is also the processing
+# order of events with equal time stamps (fast group, GPS, heading, pseudo, output last; paper Alg. 2).
+BARO = 0
+AIRSPEED = 1
+SIDESLIP = 2
+GPS_POS = 3
+GPS_VEL = 4
+MAG = 5
+SUN = 6
+ZERO_VELOCITY = 7
+OUTPUT = 8
+#: Sensor name per kind (the ``sensor`` column of the diagnostics).
+SENSOR_NAMES = ("baro", "airspeed", "sideslip", "gps_pos", "gps_vel", "mag", "sun", "zero_velocity", "output")
+#: Component names per kind (the ``component`` column of the diagnostics), indexed by the kernels' component id.
+COMPONENT_NAMES = (("alt",), ("tas",), ("v",), ("n", "e", "d"), ("n", "e", "d", "vg", "chi"), ("x", "y", "z"),
+                   ("t1", "t2"), ("n", "e", "d"), ())
+#: Width of the event value and variance arrays.
+N_EVENT_VALUES = 6
+#: Pseudo-measurements are never gated.
+PSEUDO_KINDS = frozenset({SIDESLIP, ZERO_VELOCITY})
+#: Valid ``heading`` choices.
+HEADING_SOURCES = ("mag", "sun", "mag+sun")
+#: GPS rows with a worse horizontal accuracy [m] are not used (math note 7: eph < 10 m); the origin needs < 5 m.
+GPS_MAX_EPH_M = 10.0
+GPS_ORIGIN_MAX_EPH_M = 5.0
+#: Magnetometer stream accepted when its median field strength lies in this range [gauss] (math note 7).
+MAG_STRENGTH_RANGE_GAUSS = (0.15, 1.0)
+#: Horizontal accuracy assumed when a receiver reports none [m] (Table 1: NEO-M8N 2.5 m).
+GPS_DEFAULT_EPH_M = 2.5
+#: Seconds of GPS used to estimate the barometer offset (math note 3.0).
+BARO_OFFSET_WINDOW_S = 10.0
+#: Decimal year used for the magnetic model when a log carries no UTC time.
+FALLBACK_DECIMAL_YEAR = 2020.0
+
+
+@dataclass(frozen=True)
+class ImuSamples:
+    """Cleaned IMU rows (body FRD).
+
+    Attributes
+    ----------
+    time_s : ndarray (n,)
+        Log clock [s], strictly increasing. Row k is the rate held over ``(time_s[k-1], time_s[k]]``.
+    gyro_rad_s : ndarray (n, 3)
+        Angular rate [rad/s].
+    accel_m_s2 : ndarray (n, 3)
+        Specific force [m/s^2] (about (0, 0, -g) at rest and level).
+    median_dt_s : float
+        Median sample interval [s].
+    gaps : tuple of (float, float)
+        ``(start_time_s, length_s)`` of intervals longer than ``max_imu_gap_factor`` median periods.
+    n_dropped : int
+        Rows removed (non-finite or non-increasing time).
+    """
+
+    time_s: np.ndarray
+    gyro_rad_s: np.ndarray
+    accel_m_s2: np.ndarray
+    median_dt_s: float
+    gaps: tuple[tuple[float, float], ...]
+    n_dropped: int
+
+
+@dataclass(frozen=True)
+class MeasurementEvents:
+    """Time-sorted measurement and output events (see the module table for values per kind).
+
+    Attributes
+    ----------
+    time_s : ndarray (m,)
+        Event time on the log clock [s] (sample time, GPS latency removed).
+    kind : ndarray (m,) int64
+        Measurement kind code (``BARO`` ... ``OUTPUT``).
+    imu_index : ndarray (m,) int64
+        Index k of the IMU row whose interval ``(time_s[k-1], time_s[k]]`` contains the event (0: at the start).
+    values : ndarray (m, 6)
+        Measurement values.
+    variances : ndarray (m, 6)
+        Measurement noise variances per component.
+    """
+
+    time_s: np.ndarray
+    kind: np.ndarray
+    imu_index: np.ndarray
+    values: np.ndarray
+    variances: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.time_s)
+
+    def count(self, kind: int) -> int:
+        """Number of events of one kind."""
+        return int(np.count_nonzero(self.kind == kind))
+
+    def without(self, kinds) -> MeasurementEvents:
+        """A copy without the events of the given kinds (order kept)."""
+        keep = ~np.isin(self.kind, np.asarray(tuple(kinds), dtype=np.int64))
+        return MeasurementEvents(self.time_s[keep], self.kind[keep], self.imu_index[keep], self.values[keep],
+                                 self.variances[keep])
+
+
+@dataclass(frozen=True)
+class Origin:
+    """Local NED origin (math note 1.1).
+
+    Attributes
+    ----------
+    lat_deg, lon_deg : float
+        WGS-84 latitude/longitude [deg] (NaN without GPS).
+    alt_m : float
+        Altitude above MSL [m] (first good GPS fix, else the first barometer altitude, else 0).
+    source : str
+        ``"gps"``, ``"baro"`` or ``"none"``.
+    """
+
+    lat_deg: float
+    lon_deg: float
+    alt_m: float
+    source: str
+
+
+@dataclass(frozen=True)
+class Alignment:
+    """Initial state (math note 5.5).
+
+    Attributes
+    ----------
+    roll_rad, pitch_rad, yaw_rad : float
+        Initial ZYX Euler angles [rad].
+    gyro_bias_rad_s : ndarray (3,)
+        Initial gyro bias [rad/s] (mean gyro of the still window, else zeros).
+    velocity_ned_m_s : ndarray (3,)
+        Initial NED velocity [m/s] (zero when still, else the first GPS velocity).
+    position_ned_m : ndarray (3,)
+        Initial NED position [m] (first GPS position, else zeros; down from the barometer when no GPS).
+    still_window_s : tuple of (float, float) or None
+        ``(start, end)`` of the still window used, or None for an in-air start.
+    yaw_source : str
+        ``"mag"``, ``"onboard_attitude"`` (reference borrowed from the autopilot), ``"gps_course"`` or ``"none"``.
+    tilt_source : str
+        ``"still_window"``, ``"onboard_attitude"`` or ``"accelerometer"`` (in-air levelling).
+    """
+
+    roll_rad: float
+    pitch_rad: float
+    yaw_rad: float
+    gyro_bias_rad_s: np.ndarray
+    velocity_ned_m_s: np.ndarray
+    position_ned_m: np.ndarray
+    still_window_s: tuple[float, float] | None
+    yaw_source: str
+    tilt_source: str
+
+
+@dataclass(frozen=True)
+class SensorPlan:
+    """What a replay can use (math note 7).
+
+    Attributes
+    ----------
+    fixed_wing : bool
+        MAV_TYPE says fixed-wing: airspeed-based models and the zero-sideslip pseudo-measurement apply.
+    has_gps, has_baro, has_mag, has_airspeed, has_sun : bool
+        Usable streams.
+    used : tuple of str
+        Sensors with events (names from :data:`SENSOR_NAMES`).
+    skipped : dict of str -> str
+        Sensor -> why it is not used.
+    degradations : tuple of str
+        Degraded modes applied, in words.
+    """
+
+    fixed_wing: bool
+    has_gps: bool
+    has_baro: bool
+    has_mag: bool
+    has_airspeed: bool
+    has_sun: bool
+    used: tuple[str, ...]
+    skipped: dict[str, str]
+    degradations: tuple[str, ...]
+
+
+@dataclass(frozen=True)
+class ReplayInputs:
+    """Everything a filter kernel needs from one log.
+
+    Attributes
+    ----------
+    imu : ImuSamples
+    events : MeasurementEvents
+        Sorted events including the ``OUTPUT`` epochs.
+    origin : Origin
+    plan : SensorPlan
+    alignment : Alignment
+    mag_field_ned : ndarray (3,)
+        Earth field at the origin in NED divided by :attr:`mag_strength_gauss` (a unit vector; the MAG event
+        values are divided by the same strength).
+    mag_strength_gauss : float
+        Reference field strength [gauss]: median |m| of the log's magnetometer.
+    mag_field_source : str
+        ``"wmm"`` (World Magnetic Model at origin and date) or ``"declination_parameter"`` (no position: the
+        log's declination parameter and the measured inclination).
+    gravity_m_s2 : float
+        Local normal gravity at the origin [m/s^2] (math note 1.2).
+    gps_delay_s : float
+        GPS latency removed from GPS sample times [s].
+    baro_offset_m : float
+        Barometric minus GPS altitude [m] removed from the barometer (0 without GPS).
+    output_time_s : ndarray
+        Output epochs [s].
+    source : str
+        Log name, for messages.
+    warnings : tuple of str
+    """
+
+    imu: ImuSamples
+    events: MeasurementEvents
+    origin: Origin
+    plan: SensorPlan
+    alignment: Alignment
+    mag_field_ned: np.ndarray
+    mag_strength_gauss: float
+    mag_field_source: str
+    gravity_m_s2: float
+    gps_delay_s: float
+    baro_offset_m: float
+    output_time_s: np.ndarray
+    source: str
+    warnings: tuple[str, ...] = field(default=())
+
+
+def build_replay_inputs(flight_log: FlightLog, config: EstimatorConfig | None = None, *, rate_hz: float = 50.0,
+                        heading: str = "mag", sun_observations: pd.DataFrame | None = None) -> ReplayInputs:
+    """Prepare the kernel inputs of one log (validated once, here).
+
+    Parameters
+    ----------
+    flight_log : FlightLog
+        The canonical log; needs an ``imu`` stream.
+    config : EstimatorConfig, optional
+        Settings (defaults when None).
+    rate_hz : float
+        Output rate [Hz]; output epochs are ``k / rate_hz`` on the log clock.
+    heading : {"mag", "sun", "mag+sun"}
+        Absolute heading source(s).
+    sun_observations : pandas.DataFrame, optional
+        Sun-vector observations indexed by ``time_s`` [s] with columns ``sun_x, sun_y, sun_z`` (unit vector in
+        body FRD), ``sun_n, sun_e, sun_d`` (unit vector towards the sun in NED) and ``sigma_rad`` (direction
+        noise per tangent axis [rad]); produced by the sun-vector solver. Required for ``heading`` with sun.
+
+    Returns
+    -------
+    ReplayInputs
+
+    Raises
+    ------
+    InputError
+        No usable IMU data, bad rate or heading choice, sun heading without sun observations.
+    """
+    config = EstimatorConfig() if config is None else config
+    source = flight_log.meta.source
+    if not (isinstance(rate_hz, (int, float)) and math.isfinite(rate_hz) and 0 < rate_hz <= 1000):
+        raise InputError(f"output rate must be in (0, 1000] Hz, got {rate_hz!r}", field="rate_hz")
+    if heading not in HEADING_SOURCES:
+        raise InputError(f"heading must be one of {', '.join(HEADING_SOURCES)}, got {heading!r}", field="heading")
+    warnings: list[str] = []
+    imu = _imu_samples(flight_log, config, warnings)
+    t_start, t_end = float(imu.time_s[0]), float(imu.time_s[-1])
+    fixed_wing = bool(flight_log.meta.is_fixed_wing)
+    if flight_log.meta.vehicle_type is None:
+        warnings.append("MAV_TYPE missing: multicopter assumptions (no fixed-wing pseudo-measurements)")
+    skipped: dict[str, str] = {}
+    degradations: list[str] = []
+    parts: list[tuple[np.ndarray, int, np.ndarray, np.ndarray]] = []
+
+    gps_delay_s = _gps_delay_s(flight_log, config)
+    gps = _gps_rows(flight_log, gps_delay_s, skipped)
+    origin = _origin(flight_log, gps)
+    gravity = float(environment.local_gravity_m_s2(origin.lat_deg if origin.source == "gps" else 45.0,
+                                                   origin.alt_m))
+    if gps is not None:
+        parts += _gps_events(gps, origin, config)
+    else:
+        degradations.append("no GPS: attitude and height only; zero-velocity pseudo-measurement keeps the tilt "
+                            "observable; no position or velocity output")
+
+    baro_offset_m = 0.0
+    baro = _sensor_rows(flight_log, "baro", ("alt_m",), skipped)
+    if baro is not None:
+        baro_t, baro_alt = baro[0], baro[1][:, 0]
+        if gps is not None:
+            baro_offset_m = _baro_offset_m(baro_t, baro_alt, gps)
+        z = baro_alt - baro_offset_m - origin.alt_m
+        parts.append((baro_t, BARO, z[:, None], np.full((len(z), 1), config.noise.baro_sigma_m ** 2)))
+    else:
+        degradations.append("no barometer: height from GPS only")
+
+    mag_field, mag_strength, mag_field_source = np.zeros(3), 1.0, "none"
+    use_mag = heading in ("mag", "mag+sun")
+    mag = _sensor_rows(flight_log, "mag", ("mag_x_gauss", "mag_y_gauss", "mag_z_gauss"), skipped)
+    if mag is not None:
+        strength = float(np.median(np.linalg.norm(mag[1], axis=1)))
+        if not MAG_STRENGTH_RANGE_GAUSS[0] <= strength <= MAG_STRENGTH_RANGE_GAUSS[1]:
+            skipped["mag"] = (f"median field strength {strength:.3f} gauss outside "
+                              f"{MAG_STRENGTH_RANGE_GAUSS[0]}-{MAG_STRENGTH_RANGE_GAUSS[1]} gauss")
+            mag = None
+        elif not use_mag:
+            skipped["mag"] = f"heading source is {heading!r}"
+            mag = None
+    if mag is not None:
+        mag_strength = strength
+        mag_field, mag_field_source = _earth_field_unit(flight_log, origin, mag, imu, config, warnings)
+        values = mag[1] / mag_strength
+        parts.append((mag[0], MAG, values, np.full(values.shape, config.noise.mag_sigma ** 2)))
+
+    has_sun = False
+    if heading in ("sun", "mag+sun"):
+        if sun_observations is None or len(sun_observations) == 0:
+            raise InputError(f"heading {heading!r} needs sun-vector observations (a sun-device CSV)",
+                             source=source, field="heading")
+        parts.append(_sun_events(sun_observations, source))
+        has_sun = True
+    if mag is None and not has_sun:
+        degradations.append("no absolute heading (magnetometer/sun): yaw dead-reckoned from the gyro")
+
+    airspeed = _sensor_rows(flight_log, "airspeed", ("tas_m_s",), skipped)
+    if airspeed is not None:
+        tas_t, tas = airspeed[0], airspeed[1][:, 0]
+        if np.nanstd(tas) < 0.1:
+            skipped["airspeed"] = "true airspeed constant"
+            airspeed = None
+        else:
+            flying = tas > config.timing.min_airspeed_m_s
+            if not flying.any():
+                skipped["airspeed"] = f"never above {config.timing.min_airspeed_m_s} m/s"
+                airspeed = None
+            else:
+                parts.append((tas_t[flying], AIRSPEED, tas[flying, None],
+                              np.full((int(flying.sum()), 1), config.noise.airspeed_sigma_m_s ** 2)))
+    if airspeed is None:
+        degradations.append("no airspeed: no wind states, no airspeed update")
+    if fixed_wing:
+        pseudo_t = _pseudo_times(t_start, t_end, config.timing.pseudo_rate_hz)
+        airborne = _airborne(pseudo_t, airspeed, gps, config)
+        sigma = config.noise.sideslip_sigma_m_s if airspeed is not None else config.noise.sideslip_no_wind_sigma_m_s
+        times = pseudo_t[airborne]
+        parts.append((times, SIDESLIP, np.zeros((len(times), 1)), np.full((len(times), 1), sigma ** 2)))
+    else:
+        skipped["sideslip"] = "not a fixed-wing vehicle (MAV_TYPE)"
+        degradations.append("multicopter: no fixed-wing pseudo-measurements")
+    if gps is None:
+        times = _pseudo_times(t_start, t_end, config.timing.pseudo_rate_hz)
+        parts.append((times, ZERO_VELOCITY, np.zeros((len(times), 3)),
+                      np.full((len(times), 3), config.noise.zero_velocity_sigma_m_s ** 2)))
+
+    output_time_s = np.arange(math.ceil(t_start * rate_hz - 1e-9), math.floor(t_end * rate_hz + 1e-9) + 1) / rate_hz
+    parts.append((output_time_s, OUTPUT, np.zeros((len(output_time_s), 0)), np.zeros((len(output_time_s), 0))))
+    events = _merge_events(parts, imu.time_s)
+
+    alignment = _alignment(flight_log, imu, gps, mag, mag_field, mag_strength, origin, baro, baro_offset_m,
+                           gravity, config, warnings)
+    used = tuple(SENSOR_NAMES[k] for k in range(OUTPUT) if events.count(k) > 0)
+    plan = SensorPlan(fixed_wing=fixed_wing, has_gps=gps is not None, has_baro=baro is not None,
+                      has_mag=mag is not None, has_airspeed=airspeed is not None, has_sun=has_sun, used=used,
+                      skipped=skipped, degradations=tuple(degradations))
+    return ReplayInputs(imu=imu, events=events, origin=origin, plan=plan, alignment=alignment,
+                        mag_field_ned=mag_field, mag_strength_gauss=mag_strength, mag_field_source=mag_field_source,
+                        gravity_m_s2=gravity, gps_delay_s=gps_delay_s, baro_offset_m=baro_offset_m,
+                        output_time_s=output_time_s, source=source, warnings=tuple(warnings))
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# streams
+
+
+def _imu_samples(flight_log: FlightLog, config: EstimatorConfig, warnings: list[str]) -> ImuSamples:
+    source = flight_log.meta.source
+    if not flight_log.has("imu"):
+        raise InputError("no IMU data (sensor_combined): nothing to propagate", source=source, field="imu")
+    frame = flight_log["imu"]
+    columns = ("gyro_x_rad_s", "gyro_y_rad_s", "gyro_z_rad_s", "accel_x_m_s2", "accel_y_m_s2", "accel_z_m_s2")
+    missing = [c for c in columns if c not in frame.columns]
+    if missing:
+        raise InputError(f"missing columns {missing}", source=source, field="imu")
+    time_s = frame.index.to_numpy(dtype=float)
+    data = frame.loc[:, list(columns)].to_numpy(dtype=float)
+    keep = np.isfinite(time_s) & np.isfinite(data).all(axis=1)
+    time_s, data = time_s[keep], data[keep]
+    # keep strictly increasing times (a duplicate or a step back repeats a sample)
+    increasing = np.ones(len(time_s), dtype=bool)
+    if len(time_s) > 1:
+        increasing[1:] = time_s[1:] > np.maximum.accumulate(time_s)[:-1]
+    n_dropped = int(len(keep) - len(time_s) + np.count_nonzero(~increasing))
+    time_s, data = time_s[increasing], data[increasing]
+    if len(time_s) < 10:
+        raise InputError(f"only {len(time_s)} usable IMU rows", source=source, field="imu")
+    dt = np.diff(time_s)
+    median_dt = float(np.median(dt))
+    is_gap = dt > config.timing.max_imu_gap_factor * median_dt
+    gaps = tuple((float(time_s[i]), float(dt[i])) for i in np.flatnonzero(is_gap))
+    if n_dropped:
+        warnings.append(f"IMU: dropped {n_dropped} non-finite or repeated rows")
+    if gaps:
+        warnings.append(f"IMU: {len(gaps)} gaps (longest {max(g[1] for g in gaps):.3f} s), propagated with the "
+                        "held rate")
+    return ImuSamples(time_s=time_s, gyro_rad_s=np.ascontiguousarray(data[:, :3]),
+                      accel_m_s2=np.ascontiguousarray(data[:, 3:]), median_dt_s=median_dt, gaps=gaps,
+                      n_dropped=n_dropped)
+
+
+def _sample_time_s(frame: pd.DataFrame) -> np.ndarray:
+    """The sensor's own sample time: ``sample_time_s`` when logged and plausible (at most 1 s before the row time,
+    never after it), else the row time."""
+    row_time = frame.index.to_numpy(dtype=float)
+    if "sample_time_s" not in frame.columns:
+        return row_time
+    sample = frame["sample_time_s"].to_numpy(dtype=float)
+    plausible = np.isfinite(sample) & (sample <= row_time) & (sample >= row_time - 1.0)
+    return np.where(plausible, sample, row_time)
+
+
+def _new_samples(time_s: np.ndarray) -> np.ndarray:
+    """Mask of rows whose sample time advanced (a republished sample repeats its sample time)."""
+    mask = np.ones(len(time_s), dtype=bool)
+    if len(time_s) > 1:
+        mask[1:] = time_s[1:] > np.maximum.accumulate(time_s)[:-1]
+    return mask
+
+
+def _sensor_rows(flight_log: FlightLog, stream: str, columns: tuple[str, ...], skipped: dict[str, str]):
+    """``(sample_time_s, values)`` of the finite, new samples of a stream, or None (reason in ``skipped``)."""
+    name = {"baro": "baro", "mag": "mag", "airspeed": "airspeed"}[stream]
+    if not flight_log.has(stream):
+        skipped[name] = "not in the log"
+        return None
+    frame = flight_log[stream]
+    if any(c not in frame.columns for c in columns):
+        skipped[name] = f"missing columns {[c for c in columns if c not in frame.columns]}"
+        return None
+    time_s = _sample_time_s(frame)
+    values = frame.loc[:, list(columns)].to_numpy(dtype=float)
+    keep = np.isfinite(time_s) & np.isfinite(values).all(axis=1)
+    time_s, values = time_s[keep], values[keep]
+    order = np.argsort(time_s, kind="stable")
+    time_s, values = time_s[order], values[order]
+    new = _new_samples(time_s)
+    time_s, values = time_s[new], values[new]
+    if len(time_s) < 2:
+        skipped[name] = "fewer than two valid samples"
+        return None
+    return time_s, values
+
+
+def _gps_delay_s(flight_log: FlightLog, config: EstimatorConfig) -> float:
+    if config.timing.gps_delay_s is not None:
+        return float(config.timing.gps_delay_s)
+    value = flight_log.meta.parameters.get("EKF2_GPS_DELAY")
+    if value is not None and math.isfinite(float(value)) and 0 <= float(value) < 1000:
+        return float(value) / 1000.0
+    return PX4_DEFAULT_GPS_DELAY_MS / 1000.0
+
+
+@dataclass(frozen=True)
+class _GpsRows:
+    time_s: np.ndarray  # latency-corrected sample time [s]
+    lat_deg: np.ndarray
+    lon_deg: np.ndarray
+    alt_m: np.ndarray
+    vel_ned: np.ndarray  # (n, 3)
+    eph_m: np.ndarray
+    epv_m: np.ndarray
+    speed_sigma_m_s: np.ndarray  # NaN where not reported
+
+
+def _gps_rows(flight_log: FlightLog, delay_s: float, skipped: dict[str, str]) -> _GpsRows | None:
+    if not flight_log.has("gps"):
+        skipped["gps_pos"] = skipped["gps_vel"] = "not in the log"
+        return None
+    frame = flight_log["gps"]
+    time_s = _sample_time_s(frame) - delay_s
+    get = lambda c: frame[c].to_numpy(dtype=float) if c in frame.columns else np.full(len(frame), np.nan)  # noqa: E731
+    lat, lon, alt = get("lat_deg"), get("lon_deg"), get("alt_m")
+    vel = np.column_stack([get("vn_m_s"), get("ve_m_s"), get("vd_m_s")])
+    eph, epv, fix = get("eph_m"), get("epv_m"), get("fix_type")
+    eph = np.where(np.isfinite(eph), eph, GPS_DEFAULT_EPH_M)
+    epv = np.where(np.isfinite(epv), epv, 2.0 * eph)
+    good = (np.isfinite(time_s) & np.isfinite(lat) & np.isfinite(lon) & np.isfinite(alt) & np.isfinite(vel).all(1)
+            & (fix >= 3) & (eph < GPS_MAX_EPH_M)
+            & ((np.abs(lat) + np.abs(lon)) > 0))  # (0, 0) is a receiver's "no position"
+    if not good.any():
+        skipped["gps_pos"] = skipped["gps_vel"] = f"no 3D fix with eph < {GPS_MAX_EPH_M} m"
+        return None
+    idx = np.flatnonzero(good)
+    idx = idx[np.argsort(time_s[idx], kind="stable")]
+    idx = idx[_new_samples(time_s[idx])]
+    speed = get("speed_accuracy_m_s")[idx]
+    return _GpsRows(time_s=time_s[idx], lat_deg=lat[idx], lon_deg=lon[idx], alt_m=alt[idx], vel_ned=vel[idx],
+                    eph_m=eph[idx], epv_m=epv[idx], speed_sigma_m_s=np.where(speed > 0, speed, np.nan))
+
+
+def _origin(flight_log: FlightLog, gps: _GpsRows | None) -> Origin:
+    if gps is not None:
+        good = np.flatnonzero(gps.eph_m < GPS_ORIGIN_MAX_EPH_M)
+        i = int(good[0]) if len(good) else 0
+        return Origin(float(gps.lat_deg[i]), float(gps.lon_deg[i]), float(gps.alt_m[i]), "gps")
+    if flight_log.has("baro"):
+        alt = flight_log["baro"]["alt_m"].to_numpy(dtype=float)
+        alt = alt[np.isfinite(alt)]
+        if len(alt):
+            return Origin(math.nan, math.nan, float(np.median(alt[:20])), "baro")
+    return Origin(math.nan, math.nan, 0.0, "none")
+
+
+def _gps_events(gps: _GpsRows, origin: Origin, config: EstimatorConfig):
+    noise = config.noise
+    north, east, down = environment.geodetic_to_ned(gps.lat_deg, gps.lon_deg, gps.alt_m, origin.lat_deg,
+                                                    origin.lon_deg, origin.alt_m)
+    pos = np.column_stack([north, east, down])
+    sigma_h = np.maximum(noise.gps_pos_eph_scale * gps.eph_m, noise.gps_pos_sigma_floor_m)
+    sigma_v = np.maximum(gps.epv_m, noise.gps_hgt_sigma_floor_m)
+    pos_var = np.column_stack([sigma_h ** 2, sigma_h ** 2, sigma_v ** 2])
+    speed_sigma = np.where(np.isfinite(gps.speed_sigma_m_s), gps.speed_sigma_m_s, noise.gps_vel_sigma_default_m_s)
+    speed_sigma = np.maximum(speed_sigma, noise.gps_vel_sigma_floor_m_s)
+    vel_var = np.repeat((speed_sigma ** 2)[:, None], 3, axis=1)
+    return [(gps.time_s, GPS_POS, pos, pos_var), (gps.time_s, GPS_VEL, gps.vel_ned, vel_var)]
+
+
+def _baro_offset_m(baro_t: np.ndarray, baro_alt: np.ndarray, gps: _GpsRows) -> float:
+    """Median of barometric minus GPS altitude over the first seconds with a fix (math note 3.0)."""
+    window = gps.time_s <= gps.time_s[0] + BARO_OFFSET_WINDOW_S
+    t = gps.time_s[window]
+    inside = (t >= baro_t[0]) & (t <= baro_t[-1])
+    if not inside.any():
+        return 0.0
+    baro_at_gps = np.interp(t[inside], baro_t, baro_alt)
+    return float(np.median(baro_at_gps - gps.alt_m[window][inside]))
+
+
+def _earth_field_unit(flight_log: FlightLog, origin: Origin, mag, imu: ImuSamples, config: EstimatorConfig,
+                      warnings: list[str]) -> tuple[np.ndarray, str]:
+    """Unit earth-field direction in NED: WMM at origin and date, else declination parameter + measured dip."""
+    if origin.source == "gps":
+        year = _decimal_year(flight_log)
+        if year is None:
+            year = FALLBACK_DECIMAL_YEAR
+            warnings.append(f"no UTC time in the log: magnetic field of {FALLBACK_DECIMAL_YEAR:.1f} used")
+        field_ned = environment.earth_field_ned_gauss(origin.lat_deg, origin.lon_deg, origin.alt_m, year)
+        return field_ned / np.linalg.norm(field_ned), "wmm"
+    params = flight_log.meta.parameters
+    declination_deg = 0.0
+    for name in ("EKF2_MAG_DECL", "ATT_MAG_DECL", "LPE_MAG_DECL"):
+        if name in params and math.isfinite(float(params[name])):
+            declination_deg = float(params[name])
+            break
+    # inclination from the first second: tilt-compensate the mean field with the mean specific force
+    first = mag[0] <= mag[0][0] + 1.0
+    m_b = mag[1][first].mean(axis=0)
+    f_b = imu.accel_m_s2[imu.time_s <= imu.time_s[0] + 1.0].mean(axis=0)
+    down_b = -f_b / np.linalg.norm(f_b)
+    sin_dip = float(np.clip(np.dot(m_b, down_b) / np.linalg.norm(m_b), -1.0, 1.0))
+    cos_dip = math.sqrt(1.0 - sin_dip ** 2)
+    decl = math.radians(declination_deg)
+    warnings.append(f"no position for the magnetic model: declination {declination_deg:.2f} deg from the log's "
+                    f"parameters, inclination {math.degrees(math.asin(sin_dip)):.1f} deg measured")
+    return np.array([cos_dip * math.cos(decl), cos_dip * math.sin(decl), sin_dip]), "declination_parameter"
+
+
+def _decimal_year(flight_log: FlightLog) -> float | None:
+    offset = flight_log.meta.utc_offset_s
+    if offset is None and flight_log.has("gps") and "time_utc_s" in flight_log["gps"].columns:
+        utc = flight_log["gps"]["time_utc_s"].to_numpy(dtype=float)
+        utc = utc[np.isfinite(utc) & (utc > 1e9)]
+        if len(utc):
+            return environment.decimal_year(pd.Timestamp(float(np.median(utc)), unit="s"))
+    if offset is None:
+        return None
+    t0 = float(flight_log["imu"].index[0])
+    return environment.decimal_year(pd.Timestamp(t0 + offset, unit="s"))
+
+
+def _sun_events(observations: pd.DataFrame, source: str):
+    columns = ("sun_x", "sun_y", "sun_z", "sun_n", "sun_e", "sun_d", "sigma_rad")
+    missing = [c for c in columns if c not in observations.columns]
+    if missing:
+        raise InputError(f"sun observations lack columns {missing}", source=source, field="sun")
+    time_s = observations.index.to_numpy(dtype=float)
+    data = observations.loc[:, list(columns)].to_numpy(dtype=float)
+    keep = np.isfinite(time_s) & np.isfinite(data).all(axis=1) & (data[:, 6] > 0)
+    time_s, data = time_s[keep], data[keep]
+    variances = np.zeros((len(time_s), 2))
+    variances[:, 0] = variances[:, 1] = data[:, 6] ** 2
+    return time_s, SUN, data[:, :6], variances
+
+
+def _pseudo_times(t_start: float, t_end: float, rate_hz: float) -> np.ndarray:
+    return np.arange(math.ceil(t_start * rate_hz), math.floor(t_end * rate_hz) + 1) / rate_hz
+
+
+def _airborne(times: np.ndarray, airspeed, gps: _GpsRows | None, config: EstimatorConfig) -> np.ndarray:
+    """Flying (fixed-wing models valid) at ``times``: last airspeed above the minimum, else GPS ground speed above
+    V_min (math note 7.5)."""
+    if airspeed is not None:
+        t, value, threshold = airspeed[0], airspeed[1][:, 0], config.timing.min_airspeed_m_s
+    elif gps is not None:
+        t, value = gps.time_s, np.hypot(gps.vel_ned[:, 0], gps.vel_ned[:, 1])
+        threshold = config.timing.min_ground_speed_m_s
+    else:
+        return np.zeros(len(times), dtype=bool)
+    i = np.searchsorted(t, times, side="right") - 1
+    valid = i >= 0
+    result = np.zeros(len(times), dtype=bool)
+    result[valid] = value[i[valid]] > threshold
+    return result
+
+
+def _merge_events(parts, imu_time_s: np.ndarray) -> MeasurementEvents:
+    times = [p[0] for p in parts]
+    time_s = np.concatenate(times) if times else np.zeros(0)
+    kind = np.concatenate([np.full(len(p[0]), p[1], dtype=np.int64) for p in parts])
+    values = np.zeros((len(time_s), N_EVENT_VALUES))
+    variances = np.zeros((len(time_s), N_EVENT_VALUES))
+    row = 0
+    for t, _, v, r in parts:
+        n = len(t)
+        values[row:row + n, :v.shape[1]] = v
+        variances[row:row + n, :r.shape[1]] = r
+        row += n
+    inside = (time_s >= imu_time_s[0]) & (time_s <= imu_time_s[-1])
+    order = np.lexsort((kind[inside], time_s[inside]))
+    time_s, kind = time_s[inside][order], kind[inside][order]
+    values, variances = values[inside][order], variances[inside][order]
+    imu_index = np.searchsorted(imu_time_s, time_s, side="left").astype(np.int64)
+    return MeasurementEvents(time_s=np.ascontiguousarray(time_s), kind=kind, imu_index=imu_index,
+                             values=np.ascontiguousarray(values), variances=np.ascontiguousarray(variances))
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# initial alignment (math note 5.5)
+
+
+def still_window(imu: ImuSamples, gravity_m_s2: float, config: EstimatorConfig) -> tuple[int, int] | None:
+    """Row range ``[i0, i1)`` of the first still window starting at the log start, or None.
+
+    Still means a 0.2 s moving average of the gyro below ``timing.still_gyro_rad_s`` and of the specific force
+    within ``timing.still_accel_m_s2`` of gravity; the window must start within the first second and last at least
+    ``timing.still_window_s``.
+    """
+    timing = config.timing
+    n_avg = max(1, round(0.2 / imu.median_dt_s))
+    kernel = np.ones(n_avg) / n_avg
+    gyro = np.column_stack([np.convolve(imu.gyro_rad_s[:, i], kernel, mode="same") for i in range(3)])
+    accel = np.column_stack([np.convolve(imu.accel_m_s2[:, i], kernel, mode="same") for i in range(3)])
+    still = ((np.linalg.norm(gyro, axis=1) < timing.still_gyro_rad_s)
+             & (np.abs(np.linalg.norm(accel, axis=1) - gravity_m_s2) < timing.still_accel_m_s2))
+    # the edges of the moving average see zero padding
+    still[:n_avg // 2] = still[min(n_avg // 2, len(still) - 1)]
+    t = imu.time_s
+    start_candidates = np.flatnonzero(still & (t <= t[0] + 1.0))
+    if len(start_candidates) == 0:
+        return None
+    i0 = int(start_candidates[0])
+    moving = np.flatnonzero(~still[i0:])
+    i1 = i0 + int(moving[0]) if len(moving) else len(t)
+    if t[i1 - 1] - t[i0] < timing.still_window_s:
+        return None
+    return i0, i1
+
+
+def tilt_from_specific_force(f_b: np.ndarray) -> tuple[float, float]:
+    """Roll and pitch [rad] of a vehicle at rest from its mean specific force (FRD, about (0, 0, -g) level)."""
+    roll = math.atan2(-f_b[1], -f_b[2])
+    pitch = math.atan2(f_b[0], math.hypot(f_b[1], f_b[2]))
+    return roll, pitch
+
+
+def yaw_from_magnetometer(m_b: np.ndarray, roll_rad: float, pitch_rad: float, field_ned: np.ndarray) -> float:
+    """Yaw [rad] from a body-frame field vector, tilt-compensated (math note 3.2): the level-frame field
+    ``Ry(theta) Rx(phi) m_b`` has heading ``D - psi`` with D the reference field's declination."""
+    cr, sr = math.cos(roll_rad), math.sin(roll_rad)
+    cp, sp = math.cos(pitch_rad), math.sin(pitch_rad)
+    # Rx(phi) m, then Ry(theta)
+    y1 = cr * m_b[1] - sr * m_b[2]
+    z1 = sr * m_b[1] + cr * m_b[2]
+    x2 = cp * m_b[0] + sp * z1
+    yaw = math.atan2(field_ned[1], field_ned[0]) - math.atan2(y1, x2)
+    return math.atan2(math.sin(yaw), math.cos(yaw))
+
+
+def _alignment(flight_log: FlightLog, imu: ImuSamples, gps: _GpsRows | None, mag, mag_field: np.ndarray,
+               mag_strength: float, origin: Origin, baro, baro_offset_m: float, gravity: float,
+               config: EstimatorConfig, warnings: list[str]) -> Alignment:
+    t0 = float(imu.time_s[0])
+    window = still_window(imu, gravity, config)
+    velocity = np.zeros(3)
+    position = np.zeros(3)
+    if gps is not None:
+        i = int(np.argmin(np.abs(gps.time_s - t0)))
+        north, east, down = environment.geodetic_to_ned(gps.lat_deg[i], gps.lon_deg[i], gps.alt_m[i],
+                                                        origin.lat_deg, origin.lon_deg, origin.alt_m)
+        position = np.array([float(north), float(east), float(down)])
+    elif baro is not None:
+        position[2] = -(float(np.median(baro[1][:20, 0])) - baro_offset_m - origin.alt_m)
+    gyro_bias = np.zeros(3)
+    still_s = None
+    onboard = flight_log.streams.get("onboard_attitude")
+    if window is not None:
+        i0, i1 = window
+        roll, pitch = tilt_from_specific_force(imu.accel_m_s2[i0:i1].mean(axis=0))
+        gyro_bias = imu.gyro_rad_s[i0:i1].mean(axis=0)
+        still_s = (float(imu.time_s[i0]), float(imu.time_s[i1 - 1]))
+        tilt_source = "still_window"
+    elif onboard is not None and len(onboard) and {"qw", "qx", "qy", "qz"} <= set(onboard.columns):
+        roll, pitch, _ = _onboard_euler_at(onboard, t0)
+        tilt_source = "onboard_attitude"
+        warnings.append("no still window at the start: initial roll/pitch from the autopilot's attitude")
+    else:
+        n = max(1, round(0.5 / imu.median_dt_s))
+        roll, pitch = tilt_from_specific_force(imu.accel_m_s2[:n].mean(axis=0))
+        tilt_source = "accelerometer"
+        warnings.append("no still window at the start: initial roll/pitch from the accelerometer (in air)")
+    if window is None and gps is not None:
+        i = int(np.argmin(np.abs(gps.time_s - t0)))
+        velocity = gps.vel_ned[i].copy()
+    yaw, yaw_source = 0.0, "none"
+    if mag is not None:
+        t_end = still_s[1] if still_s is not None else mag[0][0] + 0.5
+        sel = mag[0] <= max(t_end, mag[0][0])
+        m_b = mag[1][sel].mean(axis=0) / mag_strength
+        yaw, yaw_source = yaw_from_magnetometer(m_b, roll, pitch, mag_field), "mag"
+    elif onboard is not None and len(onboard) and {"qw", "qx", "qy", "qz"} <= set(onboard.columns):
+        yaw, yaw_source = _onboard_euler_at(onboard, t0)[2], "onboard_attitude"
+        warnings.append("initial yaw borrowed from the autopilot's attitude (no magnetometer)")
+    elif gps is not None and np.hypot(velocity[0], velocity[1]) > config.timing.min_ground_speed_m_s:
+        yaw, yaw_source = math.atan2(velocity[1], velocity[0]), "gps_course"
+    return Alignment(roll_rad=roll, pitch_rad=pitch, yaw_rad=yaw, gyro_bias_rad_s=gyro_bias,
+                     velocity_ned_m_s=velocity, position_ned_m=position, still_window_s=still_s,
+                     yaw_source=yaw_source, tilt_source=tilt_source)
+
+
+def _onboard_euler_at(onboard: pd.DataFrame, time_s: float) -> tuple[float, float, float]:
+    i = int(np.clip(np.searchsorted(onboard.index.to_numpy(dtype=float), time_s), 0, len(onboard) - 1))
+    q = onboard.iloc[i][["qw", "qx", "qy", "qz"]].to_numpy(dtype=float)
+    roll, pitch, yaw = quat_to_euler(q)
+    return float(roll), float(pitch), float(yaw)

@@ -1,0 +1,244 @@
+"""EKF core algebra (estimators.ekf_core) against textbook NumPy forms, and the event builder (estimators.events)
+on small in-memory logs."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from estimators import ekf_core, events
+from estimators.config import EstimatorConfig
+from ingest.errors import InputError
+from ingest.flightlog import FlightLog, LogMetadata
+
+
+def _random_spd(rng, n):
+    a = rng.normal(size=(n, n))
+    return a @ a.T + n * np.eye(n)
+
+
+def test_transition_matrix_is_second_order_series():
+    rng = np.random.default_rng(1)
+    A = rng.normal(size=(7, 7))
+    A[4:] = 0.0
+    F = np.empty_like(A)
+    ekf_core.transition_matrix(A, 0.01, F)
+    expected = np.eye(7) + A * 0.01 + (A @ A) * 0.01 ** 2 / 2
+    np.testing.assert_allclose(F, expected, rtol=0, atol=1e-15)
+
+
+def test_propagate_covariance_equals_dense_form():
+    rng = np.random.default_rng(2)
+    n = 9
+    P = _random_spd(rng, n)
+    F = np.eye(n)
+    F[:4] += 0.05 * rng.normal(size=(4, n))  # rows 4.. without dynamics, as bias states
+    Qd = np.diag(rng.uniform(0, 1e-3, n))
+    expected = F @ P @ F.T + Qd
+    ekf_core.propagate_covariance(P, F, Qd, np.empty((n, n)), np.empty(n, dtype=bool))
+    np.testing.assert_allclose(P, expected, rtol=1e-13, atol=1e-13)
+    assert np.array_equal(P, P.T)
+
+
+@pytest.mark.parametrize("gate", [math.inf, 3.0])
+def test_scalar_update_is_joseph_form_with_gate(gate):
+    rng = np.random.default_rng(3)
+    n = 6
+    P0 = _random_spd(rng, n)
+    H = np.zeros(n)
+    H[[1, 4]] = rng.normal(size=2)
+    r_var = 0.3
+    S_expected = H @ P0 @ H + r_var
+    for nu in (0.1 * math.sqrt(S_expected), 10.0 * math.sqrt(S_expected)):
+        P = P0.copy()
+        dx, ph = np.empty(n), np.empty(n)
+        accepted, s_var, nis = ekf_core.scalar_update(P, H, nu, r_var, gate, dx, ph)
+        assert s_var == pytest.approx(S_expected, rel=1e-12)
+        assert nis == pytest.approx(nu ** 2 / S_expected, rel=1e-12)
+        K = P0 @ H / S_expected
+        if accepted:
+            I_KH = np.eye(n) - np.outer(K, H)
+            np.testing.assert_allclose(P, I_KH @ P0 @ I_KH.T + r_var * np.outer(K, K), rtol=1e-12, atol=1e-12)
+            np.testing.assert_allclose(dx, K * nu, rtol=1e-12, atol=1e-15)
+        else:
+            assert nu / math.sqrt(S_expected) > gate
+            np.testing.assert_array_equal(P, P0)
+            np.testing.assert_array_equal(dx, 0.0)
+        assert accepted == (abs(nu) / math.sqrt(S_expected) <= gate)
+
+
+def test_scalar_update_rejects_non_finite_innovation():
+    P = np.eye(3)
+    H = np.array([1.0, 0.0, 0.0])
+    dx = np.ones(3)
+    accepted, _, nis = ekf_core.scalar_update(P, H, math.nan, 1.0, math.inf, dx, np.empty(3))
+    assert not accepted and math.isnan(nis)
+    np.testing.assert_array_equal(P, np.eye(3))
+    np.testing.assert_array_equal(dx, 0.0)
+
+
+def test_repair_covariance_limits_and_pd():
+    rng = np.random.default_rng(4)
+    n = 5
+    P = _random_spd(rng, n)
+    work = np.empty((n, n))
+    lo, hi = np.full(n, 1e-9), np.full(n, 1e9)
+    before = P.copy()
+    assert not ekf_core.repair_covariance(P, lo, hi, work, 1e-12)
+    np.testing.assert_array_equal(P, before)
+    # variance cap scales the row and column, keeping the correlation
+    hi[2] = P[2, 2] / 4
+    ekf_core.repair_covariance(P, lo, hi, work, 1e-12)
+    assert P[2, 2] == pytest.approx(hi[2])
+    corr = lambda m: m[2, 0] / math.sqrt(m[2, 2] * m[0, 0])  # noqa: E731
+    assert corr(P) == pytest.approx(corr(before))
+    # an indefinite matrix is repaired
+    bad = np.array([[1.0, 2.0, 0.0], [2.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
+    assert ekf_core.repair_covariance(bad, np.zeros(3), np.full(3, 1e9), np.empty((3, 3)), 1e-9)
+    assert np.linalg.eigvalsh(bad).min() >= 1e-9 * 0.999
+
+
+def test_divergence_detection_and_reset():
+    x, P = np.array([1.0, np.nan]), np.eye(2)
+    assert not ekf_core.is_healthy(x, P)
+    assert not ekf_core.is_healthy(np.zeros(2), np.array([[1.0, np.inf], [np.inf, 1.0]]))
+    assert ekf_core.is_healthy(np.zeros(2), np.eye(2))
+    ekf_core.reset_filter(x, P, np.array([3.0, 4.0]), 2 * np.eye(2))
+    np.testing.assert_array_equal(x, [3.0, 4.0])
+    np.testing.assert_array_equal(P, 2 * np.eye(2))
+
+
+def test_recorders_count_and_drop():
+    diag_f, diag_i, counter = np.zeros((2, 4)), np.zeros((2, 3), dtype=np.int64), np.zeros(2, dtype=np.int64)
+    for k in range(3):
+        ekf_core.record_update(diag_f, diag_i, counter, 0.1 * k, 3, 1, 0.5, 2.0, 0.125, k % 2 == 0)
+    assert counter[0] == 2 and counter[1] == 1
+    np.testing.assert_allclose(diag_f[1], [0.1, 0.5, 2.0, 0.125])
+    np.testing.assert_array_equal(diag_i[:, 2], [1, 0])
+    out = np.zeros((2, 3))
+    ekf_core.record_output(out, 1, np.array([1.0, 2.0, 3.0]))
+    ekf_core.record_output(out, 5, np.array([1.0, 2.0, 3.0]))  # out of range: ignored
+    np.testing.assert_array_equal(out, [[0, 0, 0], [1, 2, 3]])
+    assert ekf_core.wrap_pi(math.pi) == pytest.approx(-math.pi)
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# events
+
+
+def _still_log(duration_s=10.0, imu_hz=250.0, *, gps=True, mag=True, mav_type=2, params=None):
+    """A vehicle at rest, level, heading north-east, at 47 N 8 E, with clean sensors."""
+    t = np.arange(0.0, duration_s, 1.0 / imu_hz) + 100.0
+    g = 9.80
+    imu = pd.DataFrame({"gyro_x_rad_s": 0.01, "gyro_y_rad_s": -0.02, "gyro_z_rad_s": 0.0, "accel_x_m_s2": 0.0,
+                        "accel_y_m_s2": 0.0, "accel_z_m_s2": -g}, index=pd.Index(t, name="time_s"))
+    streams = {"imu": imu}
+    t_baro = np.arange(t[0], t[-1], 0.05)
+    streams["baro"] = pd.DataFrame({"alt_m": 502.0, "pressure_pa": np.nan, "temp_c": np.nan},
+                                   index=pd.Index(t_baro, name="time_s"))
+    if gps:
+        t_gps = np.arange(t[0] + 0.5, t[-1], 0.1)
+        streams["gps"] = pd.DataFrame({"lat_deg": 47.0, "lon_deg": 8.0, "alt_m": 500.0, "vn_m_s": 0.0,
+                                       "ve_m_s": 0.0, "vd_m_s": 0.0, "eph_m": 1.0, "epv_m": 1.5, "fix_type": 3,
+                                       "time_utc_s": 1.7e9 + t_gps}, index=pd.Index(t_gps, name="time_s"))
+    if mag:
+        t_mag = np.arange(t[0], t[-1], 0.02)
+        yaw = math.radians(45.0)
+        field = np.array([0.21, 0.0, 0.43])  # declination ~0 for the test; rotated into the body by -yaw
+        m_b = np.array([math.cos(yaw) * field[0], -math.sin(yaw) * field[0], field[2]])
+        streams["mag"] = pd.DataFrame({"mag_x_gauss": m_b[0], "mag_y_gauss": m_b[1], "mag_z_gauss": m_b[2]},
+                                      index=pd.Index(t_mag, name="time_s"))
+    meta = LogMetadata(source="still.ulg", vehicle_type=mav_type, parameters=dict(params or {}),
+                       utc_offset_s=1.7e9 if gps else None)
+    return FlightLog(streams=streams, meta=meta)
+
+
+def test_events_sorted_with_imu_interval_index():
+    inputs = events.build_replay_inputs(_still_log(), rate_hz=50.0)
+    ev, t_imu = inputs.events, inputs.imu.time_s
+    assert np.all(np.diff(ev.time_s) >= 0)
+    # each event lies in the interval (t[k-1], t[k]] of its IMU row
+    k = ev.imu_index
+    assert np.all(ev.time_s <= t_imu[k])
+    assert np.all(ev.time_s[k > 0] > t_imu[k[k > 0] - 1])
+    # equal times: kinds in processing order, output last
+    same = np.diff(ev.time_s) == 0
+    assert np.all(np.diff(ev.kind)[same] > 0)
+    out = ev.time_s[ev.kind == events.OUTPUT]
+    np.testing.assert_allclose(out, inputs.output_time_s)
+    np.testing.assert_allclose(np.diff(out), 0.02, atol=1e-9)
+    assert set(inputs.plan.used) == {"baro", "gps_pos", "gps_vel", "mag"}
+    assert inputs.plan.skipped["sideslip"].startswith("not a fixed-wing")
+    assert inputs.plan.skipped["airspeed"] == "not in the log"
+
+
+def test_gps_delay_from_parameter_and_default():
+    log = _still_log(params={"EKF2_GPS_DELAY": 200.0})
+    inputs = events.build_replay_inputs(log)
+    gps_t = inputs.events.time_s[inputs.events.kind == events.GPS_POS]
+    assert inputs.gps_delay_s == pytest.approx(0.2)
+    np.testing.assert_allclose(gps_t[:3], log["gps"].index[:3] - 0.2)
+    assert events.build_replay_inputs(_still_log()).gps_delay_s == pytest.approx(0.11)
+    config = EstimatorConfig(timing=EstimatorConfig().timing.__class__(gps_delay_s=0.0))
+    assert events.build_replay_inputs(log, config).gps_delay_s == 0.0
+
+
+def test_sample_time_and_duplicates():
+    log = _still_log()
+    baro = log["baro"].copy()
+    # sample times 10 ms before the row time; rows 5 and 6 repeat one sample
+    sample = baro.index.to_numpy() - 0.01
+    sample[6] = sample[5]
+    baro["sample_time_s"] = sample
+    log.streams["baro"] = baro
+    inputs = events.build_replay_inputs(log)
+    baro_t = inputs.events.time_s[inputs.events.kind == events.BARO]
+    assert len(baro_t) == len(baro) - 1 - np.count_nonzero(sample < inputs.imu.time_s[0])
+    np.testing.assert_allclose(baro_t[:5], sample[sample >= inputs.imu.time_s[0]][:5])
+    # duplicate IMU rows are dropped and counted
+    imu = log["imu"]
+    log.streams["imu"] = pd.concat([imu.iloc[:50], imu.iloc[49:]])
+    assert events.build_replay_inputs(log).imu.n_dropped == 1
+
+
+def test_baro_offset_and_heights():
+    inputs = events.build_replay_inputs(_still_log())
+    assert inputs.baro_offset_m == pytest.approx(2.0)
+    assert inputs.origin.source == "gps" and inputs.origin.alt_m == 500.0
+    baro = inputs.events.values[inputs.events.kind == events.BARO, 0]
+    np.testing.assert_allclose(baro, 0.0, atol=1e-9)
+
+
+def test_alignment_from_still_window():
+    inputs = events.build_replay_inputs(_still_log())
+    a = inputs.alignment
+    assert a.tilt_source == "still_window" and a.still_window_s is not None
+    assert abs(a.roll_rad) < 1e-12 and abs(a.pitch_rad) < 1e-12
+    np.testing.assert_allclose(a.gyro_bias_rad_s, [0.01, -0.02, 0.0], atol=1e-12)
+    # field of the test log has ~zero declination only approximately (WMM at 47N 8E ~ +3 deg): compare to the WMM
+    declination = math.degrees(math.atan2(inputs.mag_field_ned[1], inputs.mag_field_ned[0]))
+    assert math.degrees(a.yaw_rad) == pytest.approx(45.0 + declination, abs=1.5)
+    assert a.yaw_source == "mag"
+
+
+def test_degraded_plans():
+    no_gps = events.build_replay_inputs(_still_log(gps=False))
+    assert not no_gps.plan.has_gps and no_gps.events.count(events.ZERO_VELOCITY) > 0
+    assert no_gps.mag_field_source == "declination_parameter"
+    no_mag = events.build_replay_inputs(_still_log(mag=False))
+    assert any("yaw dead-reckoned" in d for d in no_mag.plan.degradations)
+    fixed_wing_on_ground = events.build_replay_inputs(_still_log(mav_type=1))
+    assert fixed_wing_on_ground.plan.fixed_wing and fixed_wing_on_ground.events.count(events.SIDESLIP) == 0
+    with pytest.raises(InputError, match="sun"):
+        events.build_replay_inputs(_still_log(), heading="sun")
+    with pytest.raises(InputError, match="heading"):
+        events.build_replay_inputs(_still_log(), heading="compass")
+    with pytest.raises(InputError, match="rate"):
+        events.build_replay_inputs(_still_log(), rate_hz=0.0)
+    empty = _still_log()
+    del empty.streams["imu"]
+    with pytest.raises(InputError, match="IMU"):
+        events.build_replay_inputs(empty)
