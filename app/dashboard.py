@@ -1,0 +1,25 @@
+"""Streamlit entrypoint of the solarnav dashboard: page frame, workspace, log picker and navigation.
+
+Run with ``solarnav dashboard [--workspace DIR] [--port N]`` or ``streamlit run app/dashboard.py [-- --workspace
+DIR]`` from the repository root (where ``.streamlit/config.toml`` sets the upload limit).
+"""
+
+import streamlit as st
+
+from app import adapters, session
+
+st.set_page_config(page_title="solarnav", page_icon=":sunny:", layout="wide")
+
+samples = adapters.bundled_logs(session.root())
+st.sidebar.title("solarnav")
+session.log_picker(session.workspace().list_logs(), samples[0].sha256 if samples else None)
+st.sidebar.caption(f"Workspace: `{session.root()}`")
+
+pages = [
+    st.Page("views/home.py", title="Home", icon=":material/home:", default=True),
+    st.Page("views/overview.py", title="Overview", icon=":material/flight:"),
+    st.Page("views/calibration.py", title="Calibration", icon=":material/tune:"),
+    st.Page("views/estimators.py", title="Estimators", icon=":material/compare_arrows:"),
+    st.Page("views/sun.py", title="Sun vector", icon=":material/wb_sunny:"),
+]
+st.navigation(pages).run()

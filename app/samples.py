@@ -1,0 +1,70 @@
+"""Bundled sample logs: find them in ``sample_logs/`` and add them to a workspace on first start.
+
+A sample is a ``.ulg`` file plus, optionally, a sun-device CSV and a device JSON whose names start with the ULog's
+stem (``mission.ulg``, ``mission_sun.csv``, ``mission_device.json``). No Streamlit here: the ``dashboard`` command
+and the app's entrypoint both call :func:`add_samples`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+from app.workspace import LogEntry, Workspace
+
+#: Where the simulator writes the bundled logs (``solarnav simulate``).
+SAMPLE_DIR = Path(__file__).resolve().parents[1] / "sample_logs"
+
+
+@dataclass(frozen=True)
+class SampleLog:
+    """One bundled sample.
+
+    Attributes
+    ----------
+    ulog : Path
+        The ``.ulg`` file.
+    sun_csv : Path or None
+        Sun-device CSV beside it, if any.
+    device_json : Path or None
+        Sun-device geometry JSON beside it, if any.
+    """
+
+    ulog: Path
+    sun_csv: Path | None = None
+    device_json: Path | None = None
+
+
+def find_samples(directory: Path = SAMPLE_DIR) -> list[SampleLog]:
+    """The bundled samples in ``directory``, sorted by file name (empty when the folder is missing).
+
+    Companion files are matched by name prefix: the longest ULog stem a CSV / JSON name starts with wins, so
+    ``mission_failed_cell_sun.csv`` belongs to ``mission_failed_cell.ulg``, not to ``mission.ulg``.
+    """
+    if not directory.is_dir():
+        return []
+    ulogs = sorted(directory.glob("*.ulg"))
+    stems = sorted((path.stem for path in ulogs), key=len, reverse=True)
+
+    def companion(stem: str, suffix: str) -> Path | None:
+        for path in sorted(directory.glob(f"{stem}*{suffix}")):
+            if next(s for s in stems if path.name.startswith(s)) == stem:
+                return path
+        return None
+
+    return [SampleLog(path, companion(path.stem, ".csv"), companion(path.stem, ".json")) for path in ulogs]
+
+
+def add_samples(workspace: Workspace, samples: list[SampleLog] | None = None) -> list[LogEntry]:
+    """Add the bundled samples to ``workspace`` (stored logs are recognised by content hash and kept as they are).
+
+    Returns
+    -------
+    list of LogEntry
+        The samples' catalog entries, in :func:`find_samples` order.
+    """
+    samples = find_samples() if samples is None else samples
+    return [workspace.add_log(sample.ulog.read_bytes(), sample.ulog.name,
+                              sun_csv=sample.sun_csv.read_bytes() if sample.sun_csv else None,
+                              device_json=sample.device_json.read_bytes() if sample.device_json else None)
+            for sample in samples]

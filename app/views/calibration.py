@@ -1,0 +1,8 @@
+"""calibration page (being wired to the library)."""
+
+import streamlit as st
+
+from app import session
+
+log = session.require_log()
+st.title(f"calibration: {log.meta.source}")

@@ -1,0 +1,70 @@
+"""Overview: what the log holds (vehicle, firmware, duration, streams, gaps, warnings), what it lacks and why that
+matters, and the flight itself (track in local NED, altitude and flight phases)."""
+
+import streamlit as st
+
+from app import adapters, figures, session, tables
+
+log = session.require_log()
+meta = log.meta
+st.title(f"Overview: {meta.source}")
+
+columns = st.columns(4)
+columns[0].metric("Vehicle", tables.vehicle_name(meta.vehicle_type))
+columns[1].metric("Firmware", meta.px4_version or "unknown", help=f"hardware: {meta.hardware or 'unknown'}")
+columns[2].metric("Data duration", tables.format_duration(meta.duration_s),
+                  help=f"first to last IMU sample: {meta.start_time_s:.3f} .. {meta.end_time_s:.3f} s (log clock)")
+start_utc = log.utc(meta.start_time_s)[0].strftime("%Y-%m-%d %H:%M:%S") if meta.utc_offset_s is not None else None
+columns[3].metric("Start (UTC)", start_utc or "no GPS time")
+
+missing = tables.missing_streams(log)
+sensors_missing = missing[missing["stream"].isin(tables.SENSOR_STREAMS)]
+if len(sensors_missing):
+    st.warning("Missing sensors:\n" + "\n".join(f"- **{row.stream}**: no {row.consequence}"
+                                                 for row in sensors_missing.itertuples()))
+others_missing = missing[~missing["stream"].isin(tables.SENSOR_STREAMS)]
+if len(others_missing):
+    st.info("Not in this log:\n" + "\n".join(f"- **{row.stream}**: no {row.consequence}"
+                                             for row in others_missing.itertuples()))
+if meta.warnings:
+    with st.expander(f"Reader warnings ({len(meta.warnings)})", expanded=len(meta.warnings) <= 3):
+        for warning in meta.warnings:
+            st.warning(warning)
+
+st.subheader("Streams")
+st.dataframe(tables.streams_table(meta), hide_index=True, column_config={
+    "rate_hz": st.column_config.NumberColumn("rate [Hz]", format="%.1f"),
+    "longest_gap_s": st.column_config.NumberColumn("longest gap [s]", format="%.2f"),
+    "longest_gap_at_s": st.column_config.NumberColumn("longest gap at [s]", format="%.2f"),
+})
+
+
+@st.fragment
+def flight_plots() -> None:
+    """Track and altitude with their display options (reruns alone when an option changes)."""
+    root, sha256 = session.root(), session.selected_sha256()
+    tracks = adapters.tracks_ned(root, sha256)
+    altitudes = adapters.altitudes(root, sha256)
+    sources = sorted(set(tracks) | set(altitudes), key=list(figures.SOURCE_COLORS).index)
+    if not sources:
+        st.warning("No position or altitude source in this log (no GPS, barometer or onboard estimate).")
+        return
+    shown = st.multiselect("Sources", sources, default=sources, key="overview_sources")
+    show_phases = st.toggle("Shade flight phases", value=True, key="overview_phases")
+    phases = adapters.flight_phases(root, sha256)
+    left, right = st.columns([2, 3])
+    if "GPS" not in tracks:
+        left.info("No GPS fix: the track is the onboard local position about PX4's own origin.")
+    left.plotly_chart(figures.track_figure({k: v for k, v in tracks.items() if k in shown}), key="track")
+    right.plotly_chart(figures.altitude_figure({k: v for k, v in altitudes.items() if k in shown},
+                                               phases if show_phases else None), key="altitude")
+    st.subheader("Flight phases")
+    st.dataframe(phases, hide_index=True, column_config={
+        "start_s": st.column_config.NumberColumn("start [s]", format="%.1f"),
+        "end_s": st.column_config.NumberColumn("end [s]", format="%.1f"),
+        "duration_s": st.column_config.NumberColumn("duration [s]", format="%.1f"),
+    })
+
+
+st.subheader("Flight")
+flight_plots()

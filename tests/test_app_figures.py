@@ -1,0 +1,85 @@
+"""Figure and table builders of the dashboard, tested without Streamlit: traces present, downsampling bounds,
+units in axis titles."""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from app import figures, tables
+from calib.segments import Segment
+from ingest.flightlog import LogMetadata, StreamInfo
+
+RATE_HZ = 250.0
+
+
+def _series(duration_s: float = 3600.0, rate_hz: float = RATE_HZ, name: str = "alt_m") -> pd.Series:
+    """A long noisy series (1 h at 250 Hz by default) on the log clock."""
+    time_s = 100.0 + np.arange(int(duration_s * rate_hz)) / rate_hz
+    values = np.sin(time_s / 60.0) * 50.0 + np.random.default_rng(1).normal(0.0, 1.0, len(time_s))
+    return pd.Series(values, index=pd.Index(time_s, name="time_s"), name=name)
+
+
+def _axis_titles(fig) -> list[str]:
+    return [axis.title.text for axis in (fig.layout.xaxis, fig.layout.yaxis)]
+
+
+def test_downsample_keeps_extremes_and_bounds_count():
+    series = _series()
+    series.iloc[123_456] = 1e3  # a spike must survive the decimation
+    keep = figures.downsample_indices(series.index.to_numpy(), series.to_numpy(), max_points=2000)
+    assert len(keep) <= 2000
+    assert np.all(np.diff(keep) > 0)
+    assert 123_456 in keep
+    short = figures.downsample_indices(np.arange(10.0), np.arange(10.0), max_points=2000)
+    np.testing.assert_array_equal(short, np.arange(10))
+
+
+def test_downsample_tolerates_nan():
+    series = _series(60.0)
+    series.iloc[::7] = np.nan
+    keep = figures.downsample_indices(series.index.to_numpy(), series.to_numpy(), max_points=500)
+    assert 0 < len(keep) <= 500
+
+
+def test_altitude_figure_downsamples_each_trace_and_shades_phases():
+    phases = tables.phase_table([Segment(100.0, 400.0, "stationary", "quiet")],
+                                [Segment(800.0, 2000.0, "steady", "cruise")], 100.0, 3700.0)
+    fig = figures.altitude_figure({"GPS": _series(), "barometer": _series(rate_hz=50.0)}, phases)
+    lines = [trace for trace in fig.data if trace.mode == "lines"]
+    assert [trace.name for trace in lines] == ["GPS", "barometer"]
+    assert all(len(trace.x) <= figures.MAX_POINTS for trace in lines)
+    assert len(fig.layout.shapes) == len(phases) == 4
+    assert {trace.name for trace in fig.data} >= {"stationary", "steady cruise", "manoeuvring"}
+    assert _axis_titles(fig) == [figures.TIME_TITLE, "altitude above MSL [m]"]
+
+
+def test_track_figure_equal_axes_and_bounded_points():
+    n = 200_000
+    track = pd.DataFrame({"time_s": np.arange(n) / 100.0, "north_m": np.cos(np.arange(n) / 1e3) * 300.0,
+                          "east_m": np.sin(np.arange(n) / 1e3) * 300.0, "down_m": np.zeros(n)})
+    fig = figures.track_figure({"GPS": track, "truth": track.iloc[:100]})
+    paths = [trace for trace in fig.data if trace.mode == "lines"]
+    assert [trace.name for trace in paths] == ["GPS", "truth"]
+    assert len(paths[0].x) <= figures.MAX_POINTS and len(paths[1].x) == 100
+    assert fig.layout.yaxis.scaleanchor == "x"
+    assert _axis_titles(fig) == ["east [m]", "north [m]"]
+
+
+def test_streams_table_and_phase_table():
+    meta = LogMetadata(source="x.ulg", streams={
+        "imu": StreamInfo("sensor_combined", 1000, 250.0, ((10.0, 0.3), (20.0, 0.5))),
+        "gps": StreamInfo("vehicle_gps_position", 50, 5.0)})
+    table = tables.streams_table(meta)
+    assert list(table["stream"]) == ["imu", "gps"]
+    assert table.loc[0, "gaps"] == 2 and table.loc[0, "longest_gap_s"] == 0.5
+    assert table.loc[0, "longest_gap_at_s"] == 20.0 and np.isnan(table.loc[1, "longest_gap_s"])
+
+    phases = tables.phase_table([], [], 0.0, 10.0)
+    assert list(phases["phase"]) == ["manoeuvring"] and phases.loc[0, "duration_s"] == 10.0
+
+
+@pytest.mark.parametrize(("duration_s", "text"), [(65.25, "1:05.2"), (3725.0, "1:02:05.0")])
+def test_format_duration(duration_s, text):
+    assert tables.format_duration(duration_s) == text
