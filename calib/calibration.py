@@ -319,14 +319,18 @@ def sensor_samples(log: FlightLog, sensor: str, segment: Segment) -> tuple[np.nd
 
 def _calibrate_sensor(log: FlightLog, sensor: str, candidates: list[Segment], settings: FirSettings
                       ) -> SensorCalibration | str:
-    """Calibration of one sensor on the first candidate segment with enough samples, or a warning why not."""
-    for segment in candidates:
-        time_s, values = sensor_samples(log, sensor, segment)
-        if len(time_s) >= min_samples(max(settings.numtaps or 0, MIN_NUMTAPS)):
-            break
-    else:
+    """Calibration of one sensor on the first candidate segment with enough samples, or a warning why not.
+
+    A segment too short for a requested number of taps is used anyway when no other fits, so that the filter
+    raises a clear InputError instead of the sensor being skipped silently.
+    """
+    samples = [(segment, *sensor_samples(log, sensor, segment)) for segment in candidates]
+    usable = [item for item in samples if len(item[1]) >= min_samples(MIN_NUMTAPS)]
+    if not usable:
         return (f"{sensor}: skipped, no segment ({', '.join(_span(c) for c in candidates)}) holds enough samples "
-                f"(need >= {min_samples(max(settings.numtaps or 0, MIN_NUMTAPS))})")
+                f"(need >= {min_samples(MIN_NUMTAPS)})")
+    fitting = [item for item in usable if len(item[1]) >= min_samples(settings.numtaps or MIN_NUMTAPS)]
+    segment, time_s, values = (fitting or usable)[0]
 
     notes = []
     info = stream_info(SENSORS[sensor].stream, time_s)

@@ -97,7 +97,7 @@ class SteadyCriteria:
     Attributes
     ----------
     rate_max_rad_s : float
-        Largest norm of the averaged gyro vector [rad/s].
+        Largest RMS of the (smoothed) gyro vector norm over the window [rad/s].
     speed_std_max_m_s : float
         Largest moving standard deviation of the speed [m/s].
     min_speed_m_s : float
@@ -108,6 +108,8 @@ class SteadyCriteria:
         Shortest segment [s].
     window_s : float
         Moving window of every test [s].
+    smooth_s : float
+        Moving average applied to the gyro before its RMS over ``window_s`` [s].
     """
 
     rate_max_rad_s: float = 0.1
@@ -116,6 +118,7 @@ class SteadyCriteria:
     climb_max_m_s: float = 0.5
     min_duration_s: float = 5.0
     window_s: float = 2.0
+    smooth_s: float = 0.2
 
 
 #: Default thresholds (frozen, safe to share as argument defaults).
@@ -152,7 +155,7 @@ def find_stationary_segments(log: FlightLog, criteria: StationaryCriteria = DEFA
     accel = uniform_filter1d(imu[list(ACCEL_COLUMNS)].to_numpy(dtype=float), window, axis=0, mode="nearest")
     still = ((np.linalg.norm(gyro, axis=1) < criteria.gyro_max_rad_s)
              & (np.abs(np.linalg.norm(accel, axis=1) - criteria.gravity_m_s2) < criteria.accel_tol_m_s2))
-    speed = _speed_source(log)
+    speed = _speed_source(log, prefer="gps")
     segments = []
     for start_s, end_s in _runs(time_s, still, criteria.min_duration_s):
         reason = (f"stationary: |mean gyro| < {criteria.gyro_max_rad_s:g} rad/s and ||mean f| - g| < "
@@ -172,15 +175,19 @@ def find_stationary_segments(log: FlightLog, criteria: StationaryCriteria = DEFA
 
 def find_steady_segments(log: FlightLog, criteria: SteadyCriteria = DEFAULT_STEADY) -> list[Segment]:
     """Steady-cruise segments, longest first (empty without IMU, a speed source or an altitude source)."""
-    speed = _speed_source(log)
+    speed = _speed_source(log, prefer="airspeed")
     altitude = _altitude_source(log)
     if not log.has("imu") or speed is None or altitude is None:
         return []
     imu = log["imu"]
     imu_time_s = imu.index.to_numpy(dtype=float)
+    # Smooth away sensor noise and vibration first, then take the RMS over the window: averaging the rate
+    # itself over the window would hide an oscillation (rocking, phugoid).
     gyro = uniform_filter1d(imu[list(GYRO_COLUMNS)].to_numpy(dtype=float),
-                            _window_samples(imu_time_s, criteria.window_s), axis=0, mode="nearest")
-    intervals = _runs(imu_time_s, np.linalg.norm(gyro, axis=1) < criteria.rate_max_rad_s, 0.0)
+                            _window_samples(imu_time_s, criteria.smooth_s), axis=0, mode="nearest")
+    rms_rate = np.sqrt(uniform_filter1d(np.sum(gyro**2, axis=1), _window_samples(imu_time_s, criteria.window_s),
+                                        mode="nearest"))
+    intervals = _runs(imu_time_s, rms_rate < criteria.rate_max_rad_s, 0.0)
 
     speed_name, speed_values = speed
     speed_time_s = speed_values.index.to_numpy(dtype=float)
@@ -201,7 +208,7 @@ def find_steady_segments(log: FlightLog, criteria: SteadyCriteria = DEFAULT_STEA
                               delta=float(np.median(np.diff(alt_time_s))))
     intervals = _intersect(intervals, _runs(alt_time_s, np.abs(climb_m_s) < criteria.climb_max_m_s, 0.0))
 
-    reason = (f"steady: |mean gyro| < {criteria.rate_max_rad_s:g} rad/s, {speed_name} std < "
+    reason = (f"steady: RMS gyro < {criteria.rate_max_rad_s:g} rad/s, {speed_name} std < "
               f"{criteria.speed_std_max_m_s:g} m/s and mean > {criteria.min_speed_m_s:g} m/s, |climb rate from "
               f"{altitude_name}| < {criteria.climb_max_m_s:g} m/s ({criteria.window_s:g} s windows)")
     return sorted((Segment(start_s=a, end_s=b, kind="steady", reason=f"{reason} for {b - a:.1f} s")
@@ -234,14 +241,17 @@ def _window_samples(time_s: np.ndarray, window_s: float) -> int:
     return max(1, round(window_s / float(np.median(np.diff(time_s)))))
 
 
-def _speed_source(log: FlightLog) -> tuple[str, pd.Series] | None:
-    """("true airspeed", TAS) or ("GPS ground speed", |v_h|), whichever the log has first; None otherwise."""
-    if log.has("airspeed"):
-        return "true airspeed", log["airspeed"]["tas_m_s"].dropna()
+def _speed_source(log: FlightLog, prefer: str) -> tuple[str, pd.Series] | None:
+    """("GPS ground speed", |v_h|) or ("true airspeed", TAS), the ``prefer``-red stream ("gps" or "airspeed")
+    first; None without either. Standing still is about ground speed (wind blows through a parked pitot);
+    cruise is about airspeed."""
+    sources = {}
     if log.has("gps"):
         gps = log["gps"]
-        return "GPS ground speed", np.hypot(gps["vn_m_s"], gps["ve_m_s"]).dropna()
-    return None
+        sources["gps"] = ("GPS ground speed", np.hypot(gps["vn_m_s"], gps["ve_m_s"]).dropna())
+    if log.has("airspeed"):
+        sources["airspeed"] = ("true airspeed", log["airspeed"]["tas_m_s"].dropna())
+    return sources.get(prefer) or next(iter(sources.values()), None)
 
 
 def _altitude_source(log: FlightLog) -> tuple[str, pd.Series] | None:
