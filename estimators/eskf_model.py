@@ -29,6 +29,8 @@ Every function here is a small ``numba`` kernel; finite differences appear only 
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numba import njit
 
@@ -143,75 +145,130 @@ def right_jacobian(rotvec_rad):
 # Propagation
 # ----------------------------------------------------------------------------------------------------------------
 @njit(cache=True)
-def propagate(x, gyro_rad_s, accel_m_s2, dt_s, gravity_m_s2, F):
-    """Advance the nominal state over one IMU interval and fill the error-state transition matrix.
+def _quat_exp_scalars(rx, ry, rz):
+    """Exp of a rotation vector [rad] as four scalars (w, x, y, z); allocation-free."""
+    angle = math.sqrt(rx * rx + ry * ry + rz * rz)
+    if angle < _SMALL_ANGLE_RAD:
+        w = 1.0 - angle * angle / 8.0
+        scale = 0.5 - angle * angle / 48.0
+    else:
+        w = math.cos(0.5 * angle)
+        scale = math.sin(0.5 * angle) / angle
+    return w, scale * rx, scale * ry, scale * rz
 
-    Nominal (exact exponential map for the attitude, mid-interval attitude for the specific force):
-    ``q <- q (x) Exp(omega dt)``, ``a = R(q) Exp(omega dt/2) f + g_n``, ``p <- p + v dt + a dt^2/2``,
-    ``v <- v + a dt``; biases and wind are constant.
 
-    ``F`` is the exact first-order Jacobian of that discrete map with respect to the error state at the start of
-    the interval (right perturbation), so that ``dx_{k+1} = F dx_k`` to first order. The input noise enters as the
-    bias errors do (``gyro = omega + b_g + n_g``), hence the noise input matrices are the bias columns of ``F``.
+@njit(cache=True)
+def _quat_mul_scalars(aw, ax, ay, az, bw, bx, by, bz):
+    """Hamilton product of two quaternions given as scalars."""
+    return (aw * bw - ax * bx - ay * by - az * bz,
+            aw * bx + ax * bw + ay * bz - az * by,
+            aw * by - ax * bz + ay * bw + az * bx,
+            aw * bz + ax * by - ay * bx + az * bw)
+
+
+@njit(cache=True)
+def propagate_nominal(x, gyro_rad_s, accel_m_s2, dt_s, gravity_m_s2):
+    """Advance the nominal state over one IMU interval (allocation-free; the time loop calls it per sample).
+
+    Exact exponential map for the attitude and mid-interval attitude for the specific force, with
+    ``omega = gyro - b_g`` and ``f = accel - b_a`` held over the interval:
+    ``q <- q (x) Exp(omega dt)``, ``a = R(q (x) Exp(omega dt/2)) f + g_n``, ``p <- p + v dt + a dt^2/2``,
+    ``v <- v + a dt``; biases, wind and offsets are constant.
 
     Parameters
     ----------
     x : ndarray (NX,)
         Nominal state, updated in place (quaternion renormalised).
     gyro_rad_s, accel_m_s2 : ndarray (3,)
-        IMU sample, body FRD [rad/s], [m/s^2] (specific force), held over the interval.
+        IMU sample, body FRD [rad/s], specific force [m/s^2], held over the interval.
     dt_s : float
         Interval [s].
     gravity_m_s2 : float
         Local gravity magnitude [m/s^2] (gravity points down, +NED z).
+    """
+    half = 0.5 * dt_s
+    hw, hx, hy, hz = _quat_exp_scalars((gyro_rad_s[0] - x[X_BG]) * half, (gyro_rad_s[1] - x[X_BG + 1]) * half,
+                                       (gyro_rad_s[2] - x[X_BG + 2]) * half)
+    mw, mx, my, mz = _quat_mul_scalars(x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3], hw, hx, hy, hz)
+    fx = accel_m_s2[0] - x[X_BA]
+    fy = accel_m_s2[1] - x[X_BA + 1]
+    fz = accel_m_s2[2] - x[X_BA + 2]
+    # a = q_mid f q_mid* + g_n  (v' = v + 2 w (u x v) + 2 u x (u x v) for a unit quaternion (w, u))
+    cx = my * fz - mz * fy
+    cy = mz * fx - mx * fz
+    cz = mx * fy - my * fx
+    ax = fx + 2.0 * (mw * cx + my * cz - mz * cy)
+    ay = fy + 2.0 * (mw * cy + mz * cx - mx * cz)
+    az = fz + 2.0 * (mw * cz + mx * cy - my * cx) + gravity_m_s2
+    half_dt2 = 0.5 * dt_s * dt_s
+    x[X_P] += x[X_V] * dt_s + ax * half_dt2
+    x[X_P + 1] += x[X_V + 1] * dt_s + ay * half_dt2
+    x[X_P + 2] += x[X_V + 2] * dt_s + az * half_dt2
+    x[X_V] += ax * dt_s
+    x[X_V + 1] += ay * dt_s
+    x[X_V + 2] += az * dt_s
+    # Exp(omega dt) = Exp(omega dt/2)^2, so q_new = q_mid (x) Exp(omega dt/2)
+    qw, qx, qy, qz = _quat_mul_scalars(mw, mx, my, mz, hw, hx, hy, hz)
+    norm = math.sqrt(qw * qw + qx * qx + qy * qy + qz * qz)
+    x[X_Q] = qw / norm
+    x[X_Q + 1] = qx / norm
+    x[X_Q + 2] = qy / norm
+    x[X_Q + 3] = qz / norm
+
+
+@njit(cache=True)
+def transition(x, gyro_rad_s, accel_m_s2, dt_s, F):
+    """Error-state transition matrix of one :func:`propagate_nominal` step, at the pre-step nominal ``x``.
+
+    ``F`` is the exact first-order Jacobian of the discrete map with respect to the error at the start of the
+    interval (right perturbation), so that ``dx_{k+1} = F dx_k`` to first order; with
+    ``R_h = Exp(omega dt/2)``, ``R_mid = R R_h``, ``J_r`` the right Jacobian of SO(3) and
+    ``a_theta = -R [R_h f]x``, ``a_bg = R_mid [f]x J_r(omega dt/2) dt/2``, ``a_ba = -R_mid``:
+    ``F_pv = I dt``, ``F_p* = a_* dt^2/2``, ``F_v* = a_* dt``, ``F_thth = Exp(omega dt)^T``,
+    ``F_thbg = -J_r(omega dt) dt``; identity elsewhere. Input noise enters as the bias errors do
+    (``gyro = omega + b_g + n_g``), so the noise input matrices are the bias columns of ``F``
+    (:func:`process_noise`).
+
+    Parameters
+    ----------
+    x : ndarray (NX,)
+        Nominal state at the start of the interval (not modified).
+    gyro_rad_s, accel_m_s2 : ndarray (3,)
+        IMU input held over the interval, body FRD [rad/s], [m/s^2].
+    dt_s : float
+        Interval [s].
     F : ndarray (NE, NE)
-        Output: error-state transition matrix. Only the non-identity blocks are written; the caller keeps the
-        rest at the identity (see :func:`identity_transition`).
+        Output. Only the non-identity blocks are written; the caller keeps the rest at the identity
+        (see :func:`identity_transition`).
     """
     omega = gyro_rad_s - x[X_BG:X_BG + 3]
     f = accel_m_s2 - x[X_BA:X_BA + 3]
-    q = x[X_Q:X_Q + 4].copy()
-    R = quat_to_dcm(q)
+    R = quat_to_dcm(x[X_Q:X_Q + 4])
     half = omega * (0.5 * dt_s)
     R_half = rotvec_to_dcm(half)
     R_mid = R @ R_half
-    y = R_half @ f
-    a = R @ y
-    a[2] += gravity_m_s2
-
     full = omega * dt_s
     R_full_T = rotvec_to_dcm(full).T
     J_full = right_jacobian(full)
-    J_half = right_jacobian(half)
-
-    # Derivatives of the NED acceleration a with respect to dtheta, db_g, db_a.
-    a_th = -(R @ skew(y))
-    a_bg = (R_mid @ skew(f) @ J_half) * (0.5 * dt_s)
-    a_ba = -R_mid
+    a_th = -(R @ skew(R_half @ f))
+    a_bg = (R_mid @ skew(f) @ right_jacobian(half)) * (0.5 * dt_s)
     half_dt2 = 0.5 * dt_s * dt_s
     for i in range(3):
         F[E_P + i, E_V + i] = dt_s
         for j in range(3):
             F[E_P + i, E_TH + j] = a_th[i, j] * half_dt2
             F[E_P + i, E_BG + j] = a_bg[i, j] * half_dt2
-            F[E_P + i, E_BA + j] = a_ba[i, j] * half_dt2
+            F[E_P + i, E_BA + j] = -R_mid[i, j] * half_dt2
             F[E_V + i, E_TH + j] = a_th[i, j] * dt_s
             F[E_V + i, E_BG + j] = a_bg[i, j] * dt_s
-            F[E_V + i, E_BA + j] = a_ba[i, j] * dt_s
+            F[E_V + i, E_BA + j] = -R_mid[i, j] * dt_s
             F[E_TH + i, E_TH + j] = R_full_T[i, j]
             F[E_TH + i, E_BG + j] = -J_full[i, j] * dt_s
-
-    for i in range(3):
-        x[X_P + i] += x[X_V + i] * dt_s + a[i] * half_dt2
-        x[X_V + i] += a[i] * dt_s
-    q_new = quat_multiply(q, quat_exp(full))
-    q_new /= np.sqrt(np.sum(q_new * q_new))
-    x[X_Q:X_Q + 4] = q_new
 
 
 @njit(cache=True)
 def identity_transition():
-    """An (NE, NE) identity to be filled by :func:`propagate` (its off-identity pattern never changes)."""
+    """An (NE, NE) identity to be filled by :func:`transition` (its off-identity pattern never changes)."""
     return np.eye(NE)
 
 
@@ -227,7 +284,7 @@ def process_noise(F, gyro_psd, accel_psd, random_walk_psd, dt_s, Q):
     Parameters
     ----------
     F : ndarray (NE, NE)
-        Transition matrix of the interval (:func:`propagate`).
+        Transition matrix of the interval (:func:`transition`).
     gyro_psd, accel_psd : ndarray (3,)
         Squared white-noise densities N^2 of the gyro [rad^2/s^2/Hz] and accelerometer [m^2/s^4/Hz].
     random_walk_psd : ndarray (NE,)

@@ -55,7 +55,8 @@ def boxminus(x1: np.ndarray, x0: np.ndarray) -> np.ndarray:
 def propagated(x: np.ndarray, gyro: np.ndarray, accel: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
     out = x.copy()
     F = m.identity_transition()
-    m.propagate(out, gyro, accel, dt, GRAVITY_M_S2, F)
+    m.transition(x, gyro, accel, dt, F)
+    m.propagate_nominal(out, gyro, accel, dt, GRAVITY_M_S2)
     return out, F
 
 
@@ -139,9 +140,8 @@ def test_nominal_propagation_constant_rate_is_exact():
     x[m.X_Q] = 1.0
     gyro = np.array([0.3, -0.2, 0.5])
     accel = np.zeros(3)  # free fall
-    F = m.identity_transition()
     for _ in range(100):
-        m.propagate(x, gyro, accel, 0.01, GRAVITY_M_S2, F)
+        m.propagate_nominal(x, gyro, accel, 0.01, GRAVITY_M_S2)
     np.testing.assert_allclose(m.quat_to_dcm(x[m.X_Q:m.X_Q + 4]), Rotation.from_rotvec(gyro).as_matrix(),
                                atol=1e-12)
     np.testing.assert_allclose(x[m.X_V:m.X_V + 3], [0.0, 0.0, GRAVITY_M_S2], atol=1e-12)
@@ -260,3 +260,22 @@ def test_h_first_order(rng):
                     for s in (1e-2, 1e-3, 1e-4)]
         ratios = np.array(residual[:-1]) / np.array(residual[1:])
         assert np.all((ratios > 7.0) & (ratios < 14.0)), residual
+
+
+def test_nominal_step_matches_matrix_form(rng):
+    """The scalar-unrolled step equals the matrix form of math note 5.3 (mid-interval attitude for f)."""
+    x = random_state(rng)
+    gyro = rng.normal(0.0, 2.0, 3)
+    accel = rng.normal(0.0, 5.0, 3)
+    dt = 0.02
+    out = x.copy()
+    m.propagate_nominal(out, gyro, accel, dt, GRAVITY_M_S2)
+    omega = gyro - x[m.X_BG:m.X_BG + 3]
+    r0 = Rotation.from_quat(np.roll(x[m.X_Q:m.X_Q + 4], -1))
+    a = (r0 * Rotation.from_rotvec(omega * dt / 2)).apply(accel - x[m.X_BA:m.X_BA + 3]) + np.array([0, 0, GRAVITY_M_S2])
+    np.testing.assert_allclose(out[m.X_V:m.X_V + 3], x[m.X_V:m.X_V + 3] + a * dt, atol=1e-12)
+    np.testing.assert_allclose(out[m.X_P:m.X_P + 3], x[m.X_P:m.X_P + 3] + x[m.X_V:m.X_V + 3] * dt + a * dt ** 2 / 2,
+                               atol=1e-12)
+    expected_r = (r0 * Rotation.from_rotvec(omega * dt)).as_matrix()
+    np.testing.assert_allclose(m.quat_to_dcm(out[m.X_Q:m.X_Q + 4]), expected_r, atol=1e-14)
+    np.testing.assert_array_equal(out[m.X_BG:], x[m.X_BG:])
