@@ -1,8 +1,8 @@
 """``solarnav`` command line: one subcommand per module in :mod:`app.commands`.
 
 A command module exposes ``add_parser(subparsers)`` (which registers its sub-parser) and ``run(args) -> int``;
-it is enabled by adding its name to :data:`COMMANDS`. Bad input (:class:`~ingest.errors.InputError`) ends the
-program with a one-line message and exit code 2.
+it is enabled by adding its name to :data:`COMMANDS`. Bad input (:class:`~ingest.errors.InputError`, or an
+unreadable path) ends the program with a one-line message on stderr and exit code 2.
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ from collections.abc import Sequence
 
 from ingest.errors import InputError
 
-COMMANDS = ("info", "dashboard")
+COMMANDS = ("info", "dashboard", "simulate", "calibrate")
 
 #: Exit code for bad input (argparse uses 2 for bad arguments too).
 EXIT_BAD_INPUT = 2
@@ -32,12 +32,28 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Run one command; returns its exit code (2 with a one-line message on bad input)."""
-    args = build_parser().parse_args(argv)
+    """Run one command and return its exit status (console scripts call ``sys.exit(main())``).
+
+    Parameters
+    ----------
+    argv : sequence of str, optional
+        Arguments without the program name; default ``sys.argv[1:]``.
+
+    Returns
+    -------
+    int
+        The command's status; 2 for bad arguments (argparse's usage message) or bad input (one line
+        ``solarnav: error: ...`` on stderr).
+    """
+    try:
+        args = build_parser().parse_args(argv)
+    except SystemExit as exc:  # --help or an argument error, already printed by argparse
+        return exc.code if isinstance(exc.code, int) else EXIT_BAD_INPUT
     try:
         return args.run(args)
-    except InputError as exc:
-        print(f"solarnav {args.command}: error: {exc}", file=sys.stderr)
+    except (InputError, OSError) as exc:
+        message = " ".join(str(exc).split())  # one line, whatever the message holds
+        print(f"solarnav: error: {message}", file=sys.stderr)
         return EXIT_BAD_INPUT
 
 

@@ -20,6 +20,8 @@ from dataclasses import dataclass, field
 import numpy as np
 import pandas as pd
 
+from ingest.sun_device import SunDevice
+
 #: Canonical columns of every stream (the index is always ``time_s``). Optional columns may be missing.
 STREAM_COLUMNS: dict[str, tuple[str, ...]] = {
     # IMU: gyro [rad/s] and specific force [m/s^2] in body FRD; about (0, 0, -9.81) m/s^2 at rest.
@@ -117,6 +119,8 @@ class LogMetadata:
         Stream name -> :class:`StreamInfo`.
     warnings : list of str
         Everything the reader noticed and worked around (missing sensors, fixed timestamps, corruption).
+    sun_device : SunDevice or None
+        Geometry of the sun device whose currents are the ``sun`` stream (set with that stream).
     """
 
     source: str
@@ -132,6 +136,7 @@ class LogMetadata:
     parameters: dict[str, float] = field(default_factory=dict)
     streams: dict[str, StreamInfo] = field(default_factory=dict)
     warnings: list[str] = field(default_factory=list)
+    sun_device: SunDevice | None = None
 
     @property
     def is_fixed_wing(self) -> bool:
