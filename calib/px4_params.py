@@ -176,5 +176,5 @@ def _rms(values) -> float:
 
 
 def _origin(s: SensorCalibration) -> str:
-    return (f"FIR {s.fir.cutoff_hz:g} Hz / {s.fir.numtaps} taps, {s.segment.kind} segment "
+    return (f"FIR {s.fir.cutoff_hz:.3g} Hz / {s.fir.numtaps} taps, {s.segment.kind} segment "
             f"{s.segment.start_s:.2f} .. {s.segment.end_s:.2f} s")
