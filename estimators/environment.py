@@ -17,15 +17,14 @@ import pvlib
 import pymap3d
 from pygeomag import GeoMag
 
-#: PX4's standard gravity [m/s^2].
-STANDARD_GRAVITY_M_S2 = 9.80665
-#: ISA sea-level temperature [K], lapse rate [K/m] and the exponent g0 M / (R L) of the barometric formula.
-ISA_T0_K = 288.15
-ISA_LAPSE_K_M = 0.0065
-ISA_EXPONENT = STANDARD_GRAVITY_M_S2 * 0.0289644 / (8.3144598 * ISA_LAPSE_K_M)
-ISA_P0_PA = 101325.0
-#: Specific gas constant of dry air [J/(kg K)].
-R_DRY_AIR = 287.0531
+from ingest.atmosphere import AIR_GAS_CONSTANT_J_KG_K, STANDARD_GRAVITY_M_S2
+from ingest.atmosphere import altitude_pressure_pa as isa_pressure_pa
+from ingest.atmosphere import pressure_altitude_m as isa_altitude_m
+
+__all__ = ["MIN_SUN_ELEVATION_DEG", "STANDARD_GRAVITY_M_S2", "air_density_kg_m3", "decimal_year",
+           "earth_field_ned_gauss", "geodetic_to_ned", "isa_altitude_m", "isa_pressure_pa", "local_gravity_m_s2",
+           "ned_to_geodetic", "sun_direction_ned"]
+
 #: Sun elevation below which photocell measurements are not used [deg].
 MIN_SUN_ELEVATION_DEG = 5.0
 
@@ -44,20 +43,9 @@ def local_gravity_m_s2(lat_deg, alt_m):
     return 9.7803253359 * (1 + 0.00193185265241 * s2) / np.sqrt(1 - 0.00669437999013 * s2) - 3.086e-6 * alt_m
 
 
-def isa_pressure_pa(alt_m, qnh_pa=ISA_P0_PA):
-    """Static pressure [Pa] at ISA altitude ``alt_m`` [m] for sea-level pressure ``qnh_pa`` [Pa]."""
-    return qnh_pa * (1.0 - ISA_LAPSE_K_M * np.asarray(alt_m, dtype=float) / ISA_T0_K) ** ISA_EXPONENT
-
-
-def isa_altitude_m(pressure_pa, qnh_pa=ISA_P0_PA):
-    """ISA altitude [m] from static pressure [Pa] (inverse of :func:`isa_pressure_pa`; PX4's baro_alt_meter)."""
-    ratio = np.asarray(pressure_pa, dtype=float) / qnh_pa
-    return ISA_T0_K / ISA_LAPSE_K_M * (1.0 - ratio ** (1.0 / ISA_EXPONENT))
-
-
 def air_density_kg_m3(pressure_pa, temp_c):
     """Dry-air density [kg/m^3] from static pressure [Pa] and temperature [degC]."""
-    return np.asarray(pressure_pa, dtype=float) / (R_DRY_AIR * (np.asarray(temp_c, dtype=float) + 273.15))
+    return np.asarray(pressure_pa, dtype=float) / (AIR_GAS_CONSTANT_J_KG_K * (np.asarray(temp_c, dtype=float) + 273.15))
 
 
 def decimal_year(when: datetime | pd.Timestamp) -> float:
