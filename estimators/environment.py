@@ -18,12 +18,14 @@ import pymap3d
 from pygeomag import GeoMag
 
 from ingest.atmosphere import AIR_GAS_CONSTANT_J_KG_K, STANDARD_GRAVITY_M_S2
+from ingest.atmosphere import ISA_LAPSE_RATE_K_M as ISA_LAPSE_K_M
+from ingest.atmosphere import ISA_SEA_LEVEL_PRESSURE_PA as ISA_P0_PA
 from ingest.atmosphere import altitude_pressure_pa as isa_pressure_pa
 from ingest.atmosphere import pressure_altitude_m as isa_altitude_m
 
-__all__ = ["MIN_SUN_ELEVATION_DEG", "STANDARD_GRAVITY_M_S2", "air_density_kg_m3", "decimal_year",
-           "earth_field_ned_gauss", "geodetic_to_ned", "isa_altitude_m", "isa_pressure_pa", "local_gravity_m_s2",
-           "ned_to_geodetic", "sun_direction_ned"]
+__all__ = ["ISA_LAPSE_K_M", "ISA_P0_PA", "MIN_SUN_ELEVATION_DEG", "STANDARD_GRAVITY_M_S2", "air_density_kg_m3",
+           "decimal_year", "earth_field_ned_gauss", "geodetic_to_ned", "isa_altitude_m", "isa_pressure_pa",
+           "local_gravity_m_s2", "ned_to_geodetic", "sun_direction_ned"]
 
 #: Sun elevation below which photocell measurements are not used [deg].
 MIN_SUN_ELEVATION_DEG = 5.0
