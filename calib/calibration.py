@@ -23,7 +23,7 @@ from calib.allan import MIN_SAMPLES as ALLAN_MIN_SAMPLES
 from calib.allan import AllanFigures, allan_deviation, allan_figures
 from calib.bias import STANDARD_GRAVITY, GravityReference, InflightBias, StationaryBias, stationary_bias
 from calib.fir import MIN_NUMTAPS, FirSpec, default_cutoff_hz, default_numtaps, design_fir, min_samples
-from calib.noise import channel_noise
+from calib.noise import noise_figures
 from calib.segments import (
     ACCEL_COLUMNS,
     DEFAULT_STATIONARY,
@@ -346,7 +346,7 @@ def _calibrate_sensor(log: FlightLog, sensor: str, candidates: list[Segment], se
         notes.append(f"default filter shortened from {numtaps} to {shortened} taps to fit {len(time_s)} samples")
         numtaps = shortened
     spec = design_fir(fs_hz, cutoff_hz, numtaps)
-    figures = [channel_noise(values[:, k], spec) for k in range(values.shape[1])]
+    figures = noise_figures(values, spec)
     channels = SENSORS[sensor]
     if not all(f.sigma > 0 for f in figures):
         return f"{sensor}: skipped, constant over the segment {_span(segment)} (no noise to measure)"

@@ -58,20 +58,28 @@ def eq50(measured: np.ndarray, filtered: np.ndarray) -> tuple[float, float]:
 
 
 def channel_noise(x: np.ndarray, spec: FirSpec) -> ChannelNoise:
-    """Eq 50, residual sigma and its robust variant of one uniformly sampled channel ``x``, shape (n,).
+    """Eq 50, residual sigma and its robust variant of one uniformly sampled channel ``x``, shape (n,)."""
+    return noise_figures(np.asarray(x, dtype=float)[:, None], spec)[0]
+
+
+def noise_figures(values: np.ndarray, spec: FirSpec) -> tuple[ChannelNoise, ...]:
+    """:class:`ChannelNoise` of every column of ``values``, shape (n, k), filtered in one pass.
 
     Raises
     ------
     InputError
-        When the channel is too short for the filter (see :func:`calib.fir.zero_phase_lowpass`).
+        When the channels are too short for the filter (see :func:`calib.fir.zero_phase_lowpass`).
     """
-    x = np.asarray(x, dtype=float)
-    kept = edge_slice(len(x), spec)
-    measured = x[kept]
-    filtered = zero_phase_lowpass(x, spec)[kept]
-    eta, beta = eq50(measured, filtered)
+    values = np.asarray(values, dtype=float)
+    kept = edge_slice(len(values), spec)
+    measured = values[kept]
+    filtered = zero_phase_lowpass(values, spec)[kept]
     residual = measured - filtered
-    sigma = np.sqrt(np.var(residual, ddof=1) / spec.rho_h)
-    sigma_robust = stats.median_abs_deviation(residual, scale="normal") / np.sqrt(spec.rho_h)
-    return ChannelNoise(eta=eta, beta=beta, sigma=float(sigma), sigma_robust=float(sigma_robust),
-                        mean=float(np.mean(measured)), n_used=len(measured))
+    sigma = np.sqrt(np.var(residual, axis=0, ddof=1) / spec.rho_h)
+    sigma_robust = stats.median_abs_deviation(residual, axis=0, scale="normal") / np.sqrt(spec.rho_h)
+    out = []
+    for k in range(values.shape[1]):
+        eta, beta = eq50(measured[:, k], filtered[:, k])
+        out.append(ChannelNoise(eta=eta, beta=beta, sigma=float(sigma[k]), sigma_robust=float(sigma_robust[k]),
+                                mean=float(np.mean(measured[:, k])), n_used=len(measured)))
+    return tuple(out)
