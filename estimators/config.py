@@ -247,6 +247,51 @@ class EstimatorConfig:
         return replace(self, noise=replace(self.noise, **changes))
 
 
+def config_from_calibration(calibration, base: EstimatorConfig | None = None) -> EstimatorConfig:
+    """Noise settings from a :class:`calib.calibration.Calibration` (CALIB.json), other settings from ``base``.
+
+    Mapping (per-sample figures at the stream's rate ``fs`` -> this module's conventions):
+
+    * gyroscope, accelerometer: white-noise density ``sqrt(mean_axis(sigma^2) / fs)`` (the filters treat the IMU
+      noise as isotropic; the accelerometer's eq 52 ``tau`` weights a stage-1 measurement, not the input noise,
+      so the per-axis sigmas are used, not the R matrix);
+    * barometer, airspeed: ``sqrt(R)`` of the calibration (eq 51, hand edits honoured);
+    * magnetometer: ``sqrt(mean diag R)`` divided by the mean field strength of the calibration segment (the
+      filters use the field in units of its strength).
+
+    GPS noise stays per sample from the receiver's accuracy fields (eph, speed accuracy).
+    """
+    config = EstimatorConfig() if base is None else base
+    changes = {}
+    sensors = calibration.sensors
+
+    def density(name):
+        sensor = sensors[name]
+        sigma = [s for s in sensor.noise(calibration.noise) if math.isfinite(s)]
+        if not sigma or not sensor.fir.fs_hz > 0:
+            return None
+        return math.sqrt(sum(s * s for s in sigma) / len(sigma) / sensor.fir.fs_hz)
+
+    def r_sigma(name):
+        if name not in calibration.r:
+            return None
+        diag = [row[i] for i, row in enumerate(calibration.r[name]) if math.isfinite(row[i]) and row[i] >= 0]
+        return math.sqrt(sum(diag) / len(diag)) if diag else None
+
+    if "gyroscope" in sensors:
+        changes["gyro_noise_rad_s_sqrt_hz"] = density("gyroscope")
+    if "accelerometer" in sensors:
+        changes["accel_noise_m_s2_sqrt_hz"] = density("accelerometer")
+    changes["baro_sigma_m"] = r_sigma("barometer")
+    changes["airspeed_sigma_m_s"] = r_sigma("airspeed")
+    if "magnetometer" in sensors and r_sigma("magnetometer") is not None:
+        strength = math.sqrt(sum(m * m for m in sensors["magnetometer"].mean))
+        if strength > 0:
+            changes["mag_sigma"] = r_sigma("magnetometer") / strength
+    changes = {k: v for k, v in changes.items() if v is not None and math.isfinite(v) and v > 0}
+    return config.with_noise(**changes)
+
+
 def validate_config(config: EstimatorConfig) -> None:
     """Raise :class:`InputError` naming the field when a setting is not usable (negative noise, bad mode)."""
     for section_name in ("noise", "gates", "initial", "timing"):

@@ -10,8 +10,8 @@ nothing, so the filters' time loops can call it per sample without Python overhe
 * :func:`scalar_update` -- one scalar measurement in Joseph form with chi-square gating; returns the correction
   ``dx`` (the caller adds it and wraps angles, or injects it into a nominal state), the innovation variance
   ``S`` and the normalised innovation squared ``NIS = nu^2 / S``.
-* :func:`repair_covariance` -- symmetry, variance limits and positive definiteness (Cholesky test, eigenvalue
-  clipping only when it fails).
+* :func:`limit_variances` / :func:`repair_covariance` -- variance limits (cheap, every propagation) and positive
+  definiteness (Cholesky test, eigenvalue clipping only when it fails).
 * :func:`is_healthy` / :func:`reset_filter` -- divergence detection (non-finite state or covariance) and reset
   to a safe state; the caller counts resets and reports them.
 * :func:`record_update` / :func:`record_output` -- the diagnostics and output recorders writing into
@@ -51,6 +51,8 @@ def symmetrize(P):
 def transition_matrix(A, dt, F):
     """Second-order transition matrix ``F = I + A dt + (A dt)^2 / 2`` (math note 2.2), written into ``F``.
 
+    Rows of ``A`` that are zero (states without dynamics) give identity rows and are skipped.
+
     Parameters
     ----------
     A : ndarray (n, n)
@@ -61,21 +63,26 @@ def transition_matrix(A, dt, F):
         Output.
     """
     n = A.shape[0]
+    half_dt2 = 0.5 * dt * dt
     for i in range(n):
         for j in range(n):
             F[i, j] = 0.0
-    for i in range(n):
+        F[i, i] = 1.0
+        row_active = False
+        for k in range(n):
+            if A[i, k] != 0.0:
+                row_active = True
+                break
+        if not row_active:
+            continue
         for k in range(n):
             a_ik = A[i, k]
             if a_ik == 0.0:
                 continue
+            c = a_ik * half_dt2
             for j in range(n):
-                F[i, j] += a_ik * A[k, j]
-    half_dt2 = 0.5 * dt * dt
-    for i in range(n):
-        for j in range(n):
-            F[i, j] = F[i, j] * half_dt2 + A[i, j] * dt
-        F[i, i] += 1.0
+                F[i, j] += c * A[k, j]
+            F[i, k] += a_ik * dt
 
 
 @njit(cache=True)
@@ -83,43 +90,45 @@ def propagate_covariance(P, F, Qd, work, active):
     """``P <- F P F^T + Qd``, then symmetrised; ``P, F, Qd, work`` (n, n), ``work`` and ``active`` (n,) bool are
     scratch.
 
-    Written as ``P + D P + P D^T + D P D^T`` with ``D = F - I``, skipping the rows of ``D`` that are zero
-    (states without dynamics), which is exact and several times cheaper for the filters' sparse ``F``.
+    With ``D = F - I``: ``F P F^T = P + D P + (D P)^T + D P D^T``; only the rows of ``D`` that are non-zero
+    (states with dynamics, ``active``) contribute, which is exact and several times cheaper for the filters'
+    sparse ``F``. ``D P`` is computed as ``F P - P`` on the active rows and ``D P D^T`` as ``(D P) F^T - D P`` on
+    the active block, so no copy of ``D`` is needed.
     """
     n = P.shape[0]
-    # active rows of D = F - I
     for i in range(n):
         row_active = False
         for j in range(n):
-            d = F[i, j] - (1.0 if i == j else 0.0)
-            if d != 0.0:
+            if F[i, j] != (1.0 if i == j else 0.0):
                 row_active = True
                 break
         active[i] = row_active
-    # work = D P (zero rows where inactive)
+    # work[i] = (D P)[i] = F[i] P - P[i] on active rows
     for i in range(n):
-        for j in range(n):
-            work[i, j] = 0.0
         if not active[i]:
             continue
+        for j in range(n):
+            work[i, j] = -P[i, j]
         for k in range(n):
-            d = F[i, k] - (1.0 if i == k else 0.0)
-            if d == 0.0:
+            f_ik = F[i, k]
+            if f_ik == 0.0:
                 continue
             for j in range(n):
-                work[i, j] += d * P[k, j]
-    # P += work + work^T + work D^T
+                work[i, j] += f_ik * P[k, j]
     for i in range(n):
         for j in range(i, n):
-            v = P[i, j] + work[i, j] + work[j, i]
-            if active[i] and active[j]:
-                s = 0.0
-                for k in range(n):
-                    d = F[j, k] - (1.0 if j == k else 0.0)
-                    if d != 0.0:
-                        s += work[i, k] * d
-                v += s
-            v += 0.5 * (Qd[i, j] + Qd[j, i])
+            v = P[i, j] + 0.5 * (Qd[i, j] + Qd[j, i])
+            if active[i]:
+                v += work[i, j]
+            if active[j]:
+                v += work[j, i]
+                if active[i]:
+                    s = -work[i, j]
+                    for k in range(n):
+                        f_jk = F[j, k]
+                        if f_jk != 0.0:
+                            s += work[i, k] * f_jk
+                    v += s
             P[i, j] = v
             P[j, i] = v
 
@@ -190,13 +199,30 @@ def scalar_update(P, H, nu, r_var, gate, dx, ph):
 
 
 @njit(cache=True)
+def limit_variances(P, min_var, max_var):
+    """Keep every variance within ``[min_var[i], max_var[i]]`` (cheap; call after every propagation).
+
+    Variances below the floor are raised to it (adding a diagonal term keeps P positive semi-definite);
+    variances above the cap are scaled down with their row and column (correlations kept; e.g. the yaw standard
+    deviation is capped at 180 deg, math note 7.2).
+    """
+    n = P.shape[0]
+    for i in range(n):
+        if P[i, i] < min_var[i]:
+            P[i, i] = min_var[i]
+        elif P[i, i] > max_var[i]:
+            scale = math.sqrt(max_var[i] / P[i, i])
+            for j in range(n):
+                P[i, j] *= scale
+                P[j, i] *= scale
+
+
+@njit(cache=True)
 def repair_covariance(P, min_var, max_var, work, eig_floor):
     """Keep ``P`` a usable covariance; returns True when an eigenvalue repair was needed.
 
-    Variances below ``min_var[i]`` are raised to it (adding a diagonal term keeps P positive semi-definite);
-    variances above ``max_var[i]`` are scaled down with their row and column (correlations kept; e.g. the yaw
-    standard deviation is capped at 180 deg, math note 7.2). Then a Cholesky factorisation tests positive
-    definiteness; only when it fails, eigenvalues are clipped to ``eig_floor``.
+    Symmetrises, applies :func:`limit_variances`, then tests positive definiteness with a Cholesky
+    factorisation; only when it fails, eigenvalues are clipped to ``eig_floor``.
 
     Parameters
     ----------
@@ -210,14 +236,7 @@ def repair_covariance(P, min_var, max_var, work, eig_floor):
     """
     n = P.shape[0]
     symmetrize(P)
-    for i in range(n):
-        if P[i, i] < min_var[i]:
-            P[i, i] = min_var[i]
-        elif P[i, i] > max_var[i]:
-            scale = math.sqrt(max_var[i] / P[i, i])
-            for j in range(n):
-                P[i, j] *= scale
-                P[j, i] *= scale
+    limit_variances(P, min_var, max_var)
     # Cholesky test
     for j in range(n):
         s = P[j, j]

@@ -372,9 +372,11 @@ def build_replay_inputs(flight_log: FlightLog, config: EstimatorConfig | None = 
 
     has_sun = False
     if heading in ("sun", "mag+sun"):
+        if sun_observations is None and flight_log.has("sun"):
+            sun_observations = sun_observations_from_log(flight_log, origin, warnings)
         if sun_observations is None or len(sun_observations) == 0:
-            raise InputError(f"heading {heading!r} needs sun-vector observations (a sun-device CSV)",
-                             source=source, field="heading")
+            raise InputError(f"heading {heading!r} needs sun-vector observations (a sun-device CSV with the sun "
+                             "above the horizon and a GPS fix for the ephemeris)", source=source, field="heading")
         parts.append(_sun_events(sun_observations, source))
         has_sun = True
     if mag is None and not has_sun:
@@ -633,6 +635,41 @@ def _decimal_year(flight_log: FlightLog) -> float | None:
         return None
     t0 = float(flight_log["imu"].index[0])
     return environment.decimal_year(pd.Timestamp(t0 + offset, unit="s"))
+
+
+def sun_observations_from_log(flight_log: FlightLog, origin: Origin, warnings: list[str]) -> pd.DataFrame | None:
+    """Sun-vector observations from the log's photocell currents (:func:`estimators.sun_vector.solve_sun_log`)
+    and the sun's NED direction at the origin (NREL SPA, :func:`estimators.environment.sun_direction_ned`).
+
+    Returns None when the log has no GPS position or no UTC time (the ephemeris needs both). Epochs without a
+    solution or with the sun below :data:`estimators.environment.MIN_SUN_ELEVATION_DEG` are dropped.
+    """
+    from estimators.sun_vector import solve_sun_log
+
+    if origin.source != "gps" or flight_log.meta.utc_offset_s is None:
+        warnings.append("sun heading: no GPS position or UTC time for the ephemeris; sun vector not used")
+        return None
+    solved = solve_sun_log(flight_log["sun"])
+    solved = solved[solved["status"] == "ok"]
+    if solved.empty:
+        warnings.append("sun heading: no epoch with a valid sun-vector solution")
+        return None
+    time_s = solved["time_s"].to_numpy(dtype=float)
+    # the sun moves < 0.005 deg/s: evaluate the ephemeris at 1 Hz and interpolate (math note 8.1)
+    grid = np.arange(math.floor(time_s[0]), math.ceil(time_s[-1]) + 1.0)
+    s_grid, elevation_grid = environment.sun_direction_ned(flight_log.utc(grid), origin.lat_deg, origin.lon_deg,
+                                                           origin.alt_m)
+    s_ned = np.column_stack([np.interp(time_s, grid, s_grid[:, i]) for i in range(3)])
+    s_ned /= np.linalg.norm(s_ned, axis=1, keepdims=True)
+    elevation = np.interp(time_s, grid, elevation_grid)
+    keep = elevation > environment.MIN_SUN_ELEVATION_DEG
+    if not keep.any():
+        warnings.append("sun heading: the sun is below the horizon limit during the whole log")
+        return None
+    return pd.DataFrame({"sun_x": solved["sun_x"].to_numpy()[keep], "sun_y": solved["sun_y"].to_numpy()[keep],
+                         "sun_z": solved["sun_z"].to_numpy()[keep], "sun_n": s_ned[keep, 0], "sun_e": s_ned[keep, 1],
+                         "sun_d": s_ned[keep, 2], "sigma_rad": solved["sigma_rad"].to_numpy()[keep]},
+                        index=pd.Index(time_s[keep], name="time_s"))
 
 
 def _sun_events(observations: pd.DataFrame, source: str):

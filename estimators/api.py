@@ -1,0 +1,154 @@
+"""Replay API: run the estimators on a FlightLog and get DataFrames (the contract the CLI and the dashboard use).
+
+>>> result = run_estimators(flight_log)                                  # doctest: +SKIP
+>>> result.states.groupby("estimator").yaw_deg.describe()                # doctest: +SKIP
+
+``states``: one row per estimator per output epoch with exactly :data:`~estimators.results.STATE_COLUMNS` (NaN
+where an estimator has no such quantity) plus optional ``*_std`` columns; ``diagnostics``: one row per scalar
+measurement update with :data:`~estimators.results.DIAGNOSTIC_COLUMNS`; ``reports``: what each estimator used,
+skipped, degraded, reset, and how long it took.
+
+Estimators are looked up in :data:`ESTIMATORS`, a registry ``name -> "module:function"`` resolved on first use.
+An estimator's function has the signature ``run(flight_log, inputs, config) -> EstimatorRun`` where ``inputs``
+(:class:`~estimators.events.ReplayInputs`, built once per call and shared by all estimators) carries the IMU rows,
+time-sorted measurement events, origin, sensor plan and initial alignment.
+"""
+
+from __future__ import annotations
+
+import importlib
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, replace
+
+import pandas as pd
+
+from estimators.config import EstimatorConfig
+from estimators.events import HEADING_SOURCES, build_replay_inputs
+from estimators.results import DIAGNOSTIC_COLUMNS, STATE_COLUMNS, EstimatorReport, EstimatorRun
+from ingest.errors import InputError
+from ingest.flightlog import FlightLog
+
+#: Registry: estimator name -> ``"module:function"`` with the signature ``(flight_log, inputs, config) ->
+#: EstimatorRun``. Add an estimator with one line.
+ESTIMATORS: dict[str, str] = {
+    "three_stage": "estimators.three_stage:run",
+    "full_state_direct": "estimators.full_state_direct:run",
+    "full_state_indirect": "estimators.full_state_indirect:run",
+}
+#: Default estimator selection (all three, paper order).
+DEFAULT_ESTIMATORS = ("three_stage", "full_state_direct", "full_state_indirect")
+
+
+@dataclass(frozen=True)
+class ReplayResult:
+    """Result of :func:`run_estimators`.
+
+    Attributes
+    ----------
+    states : pandas.DataFrame
+        :data:`~estimators.results.STATE_COLUMNS` (+ optional std columns), estimators stacked in the requested
+        order, each sorted by ``time_s``.
+    diagnostics : pandas.DataFrame
+        :data:`~estimators.results.DIAGNOSTIC_COLUMNS`.
+    reports : dict of str -> EstimatorReport
+        Per estimator, in the requested order.
+    """
+
+    states: pd.DataFrame
+    diagnostics: pd.DataFrame
+    reports: dict[str, EstimatorReport]
+
+
+def estimator_function(name: str) -> Callable[..., EstimatorRun]:
+    """The run function registered under ``name``.
+
+    Raises
+    ------
+    InputError
+        Unknown name (the message lists the registered ones).
+    RuntimeError
+        The registered module or function cannot be imported (an installation problem, not user input).
+    """
+    if name not in ESTIMATORS:
+        raise InputError(f"unknown estimator {name!r} (available: {', '.join(ESTIMATORS)})", field="estimators")
+    module_name, function_name = ESTIMATORS[name].split(":")
+    try:
+        module = importlib.import_module(module_name)
+    except ModuleNotFoundError as error:
+        if error.name != module_name:
+            raise
+        raise RuntimeError(f"estimator {name!r} is registered but its module {module_name} is not available") from None
+    return getattr(module, function_name)
+
+
+def parse_estimator_names(names: str | Sequence[str]) -> tuple[str, ...]:
+    """Validate a selection (``"a,b"`` or a sequence); duplicates removed, order kept."""
+    items = [n.strip() for n in names.split(",")] if isinstance(names, str) else [str(n).strip() for n in names]
+    items = [n for n in items if n]
+    if not items:
+        raise InputError("no estimator selected", field="estimators")
+    unknown = [n for n in items if n not in ESTIMATORS]
+    if unknown:
+        raise InputError(f"unknown estimator(s) {', '.join(map(repr, unknown))} (available: {', '.join(ESTIMATORS)})",
+                         field="estimators")
+    return tuple(dict.fromkeys(items))
+
+
+def run_estimators(flight_log: FlightLog, *, estimators: str | Sequence[str] = DEFAULT_ESTIMATORS,
+                   config: EstimatorConfig | None = None, heading: str = "mag", rate_hz: float = 50.0,
+                   sun_observations: pd.DataFrame | None = None) -> ReplayResult:
+    """Run estimators on one log.
+
+    Parameters
+    ----------
+    flight_log : FlightLog
+        The canonical log (needs an ``imu`` stream).
+    estimators : str or sequence of str
+        Names from :data:`ESTIMATORS` (``"a,b"`` accepted).
+    config : EstimatorConfig, optional
+        Noise, gates, initial sigmas, timing (defaults when None).
+    heading : {"mag", "sun", "mag+sun"}
+        Absolute heading source(s); ``sun`` needs the log's ``sun`` stream (photocell currents) or
+        ``sun_observations``.
+    rate_hz : float
+        Output rate [Hz] (epochs ``k / rate_hz`` on the log clock).
+    sun_observations : pandas.DataFrame, optional
+        Pre-solved sun vectors (see :func:`estimators.events.build_replay_inputs`).
+
+    Returns
+    -------
+    ReplayResult
+
+    Raises
+    ------
+    InputError
+        Unknown estimator, bad rate/heading, no IMU data, sun heading without sun data.
+    """
+    names = parse_estimator_names(estimators)
+    if heading not in HEADING_SOURCES:
+        raise InputError(f"heading must be one of {', '.join(HEADING_SOURCES)}, got {heading!r}", field="heading")
+    config = EstimatorConfig() if config is None else config
+    functions = {name: estimator_function(name) for name in names}
+    started = time.perf_counter()
+    inputs = build_replay_inputs(flight_log, config, rate_hz=rate_hz, heading=heading,
+                                 sun_observations=sun_observations)
+    prepare_s = time.perf_counter() - started
+    states, diagnostics, reports = [], [], {}
+    for name, function in functions.items():
+        run = function(flight_log, inputs, config)
+        timings = {"prepare": prepare_s, **run.report.timings_s}
+        reports[name] = _with_timings(run.report, timings)
+        states.append(run.states.assign(estimator=name))
+        diagnostics.append(run.diagnostics.assign(estimator=name))
+    state_frame = pd.concat(states, ignore_index=True)
+    extra = [c for c in state_frame.columns if c not in STATE_COLUMNS]
+    state_frame = state_frame.loc[:, [*STATE_COLUMNS, *extra]]
+    state_frame["estimator"] = pd.Categorical(state_frame["estimator"], categories=list(names))
+    diagnostic_frame = pd.concat(diagnostics, ignore_index=True).loc[:, list(DIAGNOSTIC_COLUMNS)]
+    diagnostic_frame["estimator"] = pd.Categorical(diagnostic_frame["estimator"], categories=list(names))
+    return ReplayResult(states=state_frame, diagnostics=diagnostic_frame, reports=reports)
+
+
+def _with_timings(report: EstimatorReport, timings: dict[str, float]) -> EstimatorReport:
+    return replace(report, timings_s=timings)

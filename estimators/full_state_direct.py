@@ -1,0 +1,935 @@
+"""Full-state direct EKF (paper section 3.2; math note section 4 with the corrected eqs 34-43).
+
+State vector ``x`` (the named table :data:`STATE_TABLE`; optional blocks are present only when they help, see
+:func:`state_table`):
+
+=========  ======  ===============================================================================
+name       unit    meaning
+=========  ======  ===============================================================================
+pn pe pd   m       position NED relative to the origin (down = -(alt - alt0), math note 1.5)
+u v w      m/s     ground velocity in body FRD axes
+roll ...   rad     ZYX Euler angles phi, theta, psi (R_nb = Rz(psi) Ry(theta) Rx(phi))
+bgx ...    rad/s   gyro bias (gyro = omega + b_g + noise)
+bax ...    m/s^2   accelerometer bias (optional, ``accel_bias_states``)
+wn we      m/s     wind north/east, velocity of the air mass (only with an airspeed sensor, math note 7.1)
+bmx ...    -       magnetometer hard-iron bias in units of the field strength (only with the magnetometer)
+bb         m       barometer offset against GPS height (only with barometer and GPS)
+=========  ======  ===============================================================================
+
+Process model (corrected eq 36), inputs omega_hat = gyro - b_g, f_hat = accel - b_a:
+``p_dot = R V``, ``V_dot = V x omega_hat + f_hat + R^T g_n``, ``Theta_dot = S(Theta) omega_hat``, biases and wind
+random walks. Jacobian ``A`` (eq 37 with the blocks of math note 4) and noise ``Qc = G_g N_g^2 G_g^T +
+G_a N_a^2 G_a^T + diag(random walks)``, ``G_g = [0; -[V]x; -S; 0]``, ``G_a = [0; -I; 0; 0]``; the state is
+integrated with RK4 at the IMU rate (input held over the interval) and split at every event time; the
+covariance with ``F = I + A dt + (A dt)^2/2``, ``Qd = Qc dt`` at the fixed ``timing.covariance_rate_hz`` (A at
+the state that started the interval, with the mean IMU input over it), as PX4 EKF2 does: an update between two
+covariance steps uses the covariance of the last step (at most one covariance interval old).
+
+Measurements (sequential scalar updates in Joseph form, re-linearised after each scalar; gates per sensor):
+B1 baro ``h = -pd + bb``; B2 airspeed ``h = |V - R^T wbar|``; B3 zero sideslip ``h = e2^T (V - R^T wbar)``
+(fixed-wing only, pseudo, ungated); B4 GPS position ``h = p``; B5 GPS velocity ``h = R V`` (or ground speed and
+course in ``gps_velocity_mode="paper"``, eqs 42-43 corrected); B6 magnetometer ``h = R^T m_n + b_m`` (unit
+earth field from the WMM); B7 sun ``h = R^T s_n`` projected on the tangent plane of ``h`` (2 scalars); no-GPS
+logs add a zero NED-velocity pseudo-measurement (math note 7.3).
+
+Filter quantities (kernel arrays): ``x`` (n,) state, ``P`` (n, n) covariance (prior before, posterior after an
+update), ``nu`` innovation, ``S`` innovation variance, ``K = P H^T / S`` gain, ``NIS = nu^2 / S``; every scalar
+update is recorded (:mod:`estimators.ekf_core`).
+
+``mode="paper_indirect"`` runs the paper's indirect filter literally (eqs 44-49 corrected, math note 5.1): an
+additive error state in the same coordinates, propagated with the same ``A`` (it stays zero between updates),
+estimated over each sensor's group of scalar updates with ``H`` and ``h`` at the uncorrected prior, and injected
+(reset) after the group. It equals the direct filter exactly for linear measurement models and to second order
+otherwise.
+
+``backend="numpy"`` runs :mod:`estimators.full_state_direct_numpy`, the plain-NumPy twin of the kernel.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+
+import numpy as np
+from numba import njit
+
+from estimators import ekf_core, events
+from estimators.config import EstimatorConfig
+from estimators.events import (
+    AIRSPEED,
+    BARO,
+    GPS_POS,
+    GPS_VEL,
+    MAG,
+    OUTPUT,
+    SIDESLIP,
+    SUN,
+    ZERO_VELOCITY,
+    ReplayInputs,
+)
+from estimators.results import EstimatorReport, EstimatorRun, diagnostics_frame, states_frame
+from ingest.flightlog import FlightLog
+from ingest.frames import euler_to_matrix
+
+NAME = "full_state_direct"
+
+# fixed state slots
+I_P = 0
+I_V = 3
+I_TH = 6
+I_BG = 9
+# layout array slots: index of the first state of each optional block, -1 when absent
+L_BA = 0
+L_W = 1
+L_BM = 2
+L_BB = 3
+N_LAYOUT = 4
+
+# parameter array slots
+P_G = 0  # gravity [m/s^2]
+P_NG2 = 1  # gyro noise density^2 [(rad/s)^2/Hz]
+P_NA2 = 2  # accel noise density^2 [(m/s^2)^2/Hz]
+P_COV_DT = 3  # covariance propagation interval [s]
+P_FIELD = 4  # 4, 5, 6: unit earth field NED
+P_GPS_REJECT_S = 7  # GPS rejected this long -> reset [s]
+P_GPS_OUTAGE_S = 8  # GPS back after this long -> reset [s]
+P_VMIN = 9  # minimum ground speed for course updates [m/s]
+P_PAPER_VEL = 10  # 1: GPS velocity as ground speed and course
+P_PAPER_INDIRECT = 11  # 1: paper-literal indirect (group error state, reset after the group)
+N_PARAMS = 12
+
+#: Columns of the kernel's per-epoch output array.
+OUT_COLUMNS = ("time_s", "roll", "pitch", "yaw", "pn", "pe", "pd", "vn", "ve", "vd", "wn", "we",
+               "roll_std", "pitch_std", "yaw_std", "pn_std", "pe_std", "pd_std", "vn_std", "ve_std", "vd_std",
+               "wn_std", "we_std")
+# counters
+C_DIAG = 0
+C_DIAG_DROPPED = 1
+C_RESETS = 2
+C_GPS_RESETS = 3
+C_REPAIRS = 4
+C_UPDATES = 5
+C_OUTPUTS = 6
+C_PITCH_GUARD = 7
+C_FLUSHES = 8
+N_COUNTERS = 9
+
+#: Euler-angle filters stop attitude-dependent updates above this pitch (math note 7.6) [rad].
+PITCH_GUARD_RAD = math.radians(85.0)
+#: GPS back after an outage longer than this -> position reset (math note 2.3) [s].
+GPS_OUTAGE_RESET_S = 10.0
+#: Variance floor of every state (keeps P positive definite).
+MIN_VARIANCE = 1e-12
+#: Smallest eigenvalue kept by a covariance repair.
+EIG_FLOOR = 1e-12
+#: The full positive-definiteness test (Cholesky) runs every this many covariance propagations; the variance
+#: limits every time.
+PD_CHECK_EVERY = 10
+
+
+@dataclass(frozen=True)
+class StateSpec:
+    """One row of the state table.
+
+    Attributes
+    ----------
+    name : str
+    unit : str
+    initial_sigma : float
+        Initial 1-sigma, in ``unit``.
+    process_sigma : float
+        Random-walk density [unit/sqrt(s)] (0: the state's noise enters through the IMU inputs).
+    """
+
+    name: str
+    unit: str
+    initial_sigma: float
+    process_sigma: float
+
+
+def state_table(config: EstimatorConfig, *, accel_bias: bool, wind: bool, mag_bias: bool, baro_bias: bool,
+                absolute_yaw: bool) -> tuple[StateSpec, ...]:
+    """The state table for a run; x0, P0 and the random-walk densities are built from it.
+
+    Parameters
+    ----------
+    config : EstimatorConfig
+    accel_bias, wind, mag_bias, baro_bias : bool
+        Optional blocks present.
+    absolute_yaw : bool
+        An absolute heading source exists (initial yaw sigma ``initial.yaw_deg``, else ``yaw_unaided_deg``).
+    """
+    ini, noise = config.initial, config.noise
+    rad = math.radians
+    yaw_sigma = rad(ini.yaw_deg if absolute_yaw else ini.yaw_unaided_deg)
+    rows = [StateSpec(n, "m", ini.position_m, 0.0) for n in ("pn", "pe", "pd")]
+    rows += [StateSpec(n, "m/s", ini.velocity_m_s, 0.0) for n in ("u", "v", "w")]
+    rows += [StateSpec("roll", "rad", rad(ini.roll_pitch_deg), 0.0),
+             StateSpec("pitch", "rad", rad(ini.roll_pitch_deg), 0.0), StateSpec("yaw", "rad", yaw_sigma, 0.0)]
+    rows += [StateSpec(n, "rad/s", rad(ini.gyro_bias_deg_s), noise.gyro_bias_rw_rad_s2_sqrt_hz)
+             for n in ("bgx", "bgy", "bgz")]
+    if accel_bias:
+        rows += [StateSpec(n, "m/s^2", ini.accel_bias_m_s2, noise.accel_bias_rw_m_s3_sqrt_hz)
+                 for n in ("bax", "bay", "baz")]
+    if wind:
+        rows += [StateSpec(n, "m/s", ini.wind_m_s, noise.wind_rw_m_s_sqrt_s) for n in ("wn", "we")]
+    if mag_bias:
+        rows += [StateSpec(n, "-", ini.mag_bias, noise.mag_bias_rw_sqrt_s) for n in ("bmx", "bmy", "bmz")]
+    if baro_bias:
+        rows.append(StateSpec("bb", "m", ini.baro_bias_m, noise.baro_bias_rw_m_sqrt_s))
+    return tuple(rows)
+
+
+def layout_of(table: tuple[StateSpec, ...]) -> np.ndarray:
+    """Kernel layout array: first index of the optional blocks (``L_BA``, ``L_W``, ``L_BM``, ``L_BB``), -1 absent."""
+    names = [s.name for s in table]
+    first = {"bax": L_BA, "wn": L_W, "bmx": L_BM, "bb": L_BB}
+    layout = np.full(N_LAYOUT, -1, dtype=np.int64)
+    for name, slot in first.items():
+        if name in names:
+            layout[slot] = names.index(name)
+    return layout
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# model leaf functions (numba). Scratch: R, S, W (3, 3).
+
+
+@njit(cache=True)
+def euler_matrices(phi, theta, psi, R, S, W):
+    """Fill ``R = R_nb`` (body -> NED), ``S`` (Theta_dot = S omega) and ``W = S^-1`` (math note 1.1)."""
+    cph, sph = math.cos(phi), math.sin(phi)
+    cth, sth = math.cos(theta), math.sin(theta)
+    cps, sps = math.cos(psi), math.sin(psi)
+    R[0, 0] = cth * cps
+    R[0, 1] = sph * sth * cps - cph * sps
+    R[0, 2] = cph * sth * cps + sph * sps
+    R[1, 0] = cth * sps
+    R[1, 1] = sph * sth * sps + cph * cps
+    R[1, 2] = cph * sth * sps - sph * cps
+    R[2, 0] = -sth
+    R[2, 1] = sph * cth
+    R[2, 2] = cph * cth
+    tth = sth / cth
+    S[0, 0] = 1.0
+    S[0, 1] = sph * tth
+    S[0, 2] = cph * tth
+    S[1, 0] = 0.0
+    S[1, 1] = cph
+    S[1, 2] = -sph
+    S[2, 0] = 0.0
+    S[2, 1] = sph / cth
+    S[2, 2] = cph / cth
+    W[0, 0] = 1.0
+    W[0, 1] = 0.0
+    W[0, 2] = -sth
+    W[1, 0] = 0.0
+    W[1, 1] = cph
+    W[1, 2] = sph * cth
+    W[2, 0] = 0.0
+    W[2, 1] = -sph
+    W[2, 2] = cph * cth
+
+
+@njit(cache=True)
+def derivative(x, gyro, accel, g, layout, R, S, W, xdot):
+    """Continuous dynamics ``xdot = f(x, u)`` (corrected eq 36) for held IMU inputs ``gyro`` [rad/s],
+    ``accel`` [m/s^2] (body FRD)."""
+    euler_matrices(x[6], x[7], x[8], R, S, W)
+    om0, om1, om2 = gyro[0] - x[9], gyro[1] - x[10], gyro[2] - x[11]
+    f0, f1, f2 = accel[0], accel[1], accel[2]
+    iba = layout[L_BA]
+    if iba >= 0:
+        f0 -= x[iba]
+        f1 -= x[iba + 1]
+        f2 -= x[iba + 2]
+    u, v, w = x[3], x[4], x[5]
+    for i in range(x.shape[0]):
+        xdot[i] = 0.0
+    for i in range(3):
+        xdot[i] = R[i, 0] * u + R[i, 1] * v + R[i, 2] * w
+    xdot[3] = v * om2 - w * om1 + f0 + g * R[2, 0]
+    xdot[4] = w * om0 - u * om2 + f1 + g * R[2, 1]
+    xdot[5] = u * om1 - v * om0 + f2 + g * R[2, 2]
+    for i in range(3):
+        xdot[6 + i] = S[i, 0] * om0 + S[i, 1] * om1 + S[i, 2] * om2
+
+
+@njit(cache=True)
+def jacobian(x, gyro, g, layout, R, S, W, A):
+    """Continuous Jacobian ``A = df/dx`` (eq 37 / math note 4 blocks) at ``x`` with gyro input ``gyro``."""
+    n = x.shape[0]
+    euler_matrices(x[6], x[7], x[8], R, S, W)
+    for i in range(n):
+        for j in range(n):
+            A[i, j] = 0.0
+    p, q, r = gyro[0] - x[9], gyro[1] - x[10], gyro[2] - x[11]
+    u, v, w = x[3], x[4], x[5]
+    # dp/dV = R; dp/dTheta = -R [V]x W
+    for i in range(3):
+        for j in range(3):
+            A[i, 3 + j] = R[i, j]
+    # [V]x W: column j = V x W[:, j]
+    for j in range(3):
+        c0 = v * W[2, j] - w * W[1, j]
+        c1 = w * W[0, j] - u * W[2, j]
+        c2 = u * W[1, j] - v * W[0, j]
+        for i in range(3):
+            A[i, 6 + j] = -(R[i, 0] * c0 + R[i, 1] * c1 + R[i, 2] * c2)
+    # dV/dV = -[omega]x
+    A[3, 4] = r
+    A[3, 5] = -q
+    A[4, 3] = -r
+    A[4, 5] = p
+    A[5, 3] = q
+    A[5, 4] = -p
+    # dV/dTheta = [R^T g_n]x W, R^T g_n = g R[2, :]
+    a0, a1, a2 = g * R[2, 0], g * R[2, 1], g * R[2, 2]
+    for j in range(3):
+        A[3, 6 + j] = a1 * W[2, j] - a2 * W[1, j]
+        A[4, 6 + j] = a2 * W[0, j] - a0 * W[2, j]
+        A[5, 6 + j] = a0 * W[1, j] - a1 * W[0, j]
+    # dV/db_g = -[V]x
+    A[3, 10] = w
+    A[3, 11] = -v
+    A[4, 9] = -w
+    A[4, 11] = u
+    A[5, 9] = v
+    A[5, 10] = -u
+    iba = layout[L_BA]
+    if iba >= 0:
+        for i in range(3):
+            A[3 + i, iba + i] = -1.0
+    # dTheta/dTheta (eq 37), dTheta/db_g = -S
+    cph, sph = math.cos(x[6]), math.sin(x[6])
+    cth, sth = math.cos(x[7]), math.sin(x[7])
+    a = q * cph - r * sph
+    b = q * sph + r * cph
+    A[6, 6] = a * sth / cth
+    A[6, 7] = b / (cth * cth)
+    A[7, 6] = -b
+    A[8, 6] = a / cth
+    A[8, 7] = b * sth / (cth * cth)
+    for i in range(3):
+        for j in range(3):
+            A[6 + i, 9 + j] = -S[i, j]
+
+
+@njit(cache=True)
+def process_noise(x, ng2, na2, rw_var, R, S, W, Qc):
+    """Continuous process noise ``Qc = G_g N_g^2 G_g^T + G_a N_a^2 G_a^T + diag(rw_var)`` (per second).
+
+    ``rw_var`` (n,) holds the squared random-walk densities of the bias and wind states (0 elsewhere).
+    """
+    n = x.shape[0]
+    euler_matrices(x[6], x[7], x[8], R, S, W)
+    for i in range(n):
+        for j in range(n):
+            Qc[i, j] = 0.0
+        Qc[i, i] = rw_var[i]
+    u, v, w = x[3], x[4], x[5]
+    # [V]x
+    vx = np.empty((3, 3))
+    vx[0, 0] = 0.0
+    vx[0, 1] = -w
+    vx[0, 2] = v
+    vx[1, 0] = w
+    vx[1, 1] = 0.0
+    vx[1, 2] = -u
+    vx[2, 0] = -v
+    vx[2, 1] = u
+    vx[2, 2] = 0.0
+    for i in range(3):
+        for j in range(3):
+            vv = 0.0
+            vt = 0.0
+            tt = 0.0
+            for k in range(3):
+                vv += vx[i, k] * vx[j, k]
+                vt += vx[i, k] * S[j, k]
+                tt += S[i, k] * S[j, k]
+            Qc[3 + i, 3 + j] = ng2 * vv + (na2 if i == j else 0.0)
+            Qc[3 + i, 6 + j] = ng2 * vt
+            Qc[6 + j, 3 + i] = ng2 * vt
+            Qc[6 + i, 6 + j] = ng2 * tt
+
+
+@njit(cache=True)
+def measurement(x, kind, comp, values, field, layout, R, S, W, H):
+    """Predicted scalar measurement ``h`` and its Jacobian row ``H`` (filled, length n).
+
+    ``kind``/``comp`` as in :mod:`estimators.events`; for GPS_VEL, components 3/4 are ground speed and course
+    (paper mode); for SUN, components 0..2 are the body-frame axes (the kernel projects on the tangent plane);
+    ``values`` is the event's value row (SUN: the NED sun vector in 3..5); ``field`` the unit earth field NED.
+    """
+    n = x.shape[0]
+    for i in range(n):
+        H[i] = 0.0
+    euler_matrices(x[6], x[7], x[8], R, S, W)
+    u, v, w = x[3], x[4], x[5]
+    if kind == BARO:
+        H[2] = -1.0
+        ibb = layout[L_BB]
+        if ibb >= 0:
+            H[ibb] = 1.0
+            return -x[2] + x[ibb]
+        return -x[2]
+    if kind == GPS_POS:
+        H[comp] = 1.0
+        return x[comp]
+    if kind in (AIRSPEED, SIDESLIP):
+        iw = layout[L_W]
+        a = np.zeros(3)  # R^T wbar
+        if iw >= 0:
+            for i in range(3):
+                a[i] = R[0, i] * x[iw] + R[1, i] * x[iw + 1]
+        vr = np.empty(3)
+        vr[0], vr[1], vr[2] = u - a[0], v - a[1], w - a[2]
+        if kind == AIRSPEED:
+            va = max(math.sqrt(vr[0] * vr[0] + vr[1] * vr[1] + vr[2] * vr[2]), 1e-3)
+            for i in range(3):
+                H[3 + i] = vr[i] / va
+            # d v_r/dTheta = -[a]x W and v_r^T [a]x = (v_r x a)^T, so dVa/dTheta = -(v_r x a)^T W / Va
+            c0 = vr[1] * a[2] - vr[2] * a[1]
+            c1 = vr[2] * a[0] - vr[0] * a[2]
+            c2 = vr[0] * a[1] - vr[1] * a[0]
+            for j in range(3):
+                H[6 + j] = -(c0 * W[0, j] + c1 * W[1, j] + c2 * W[2, j]) / va
+            if iw >= 0:
+                H[iw] = -(vr[0] * R[0, 0] + vr[1] * R[0, 1] + vr[2] * R[0, 2]) / va
+                H[iw + 1] = -(vr[0] * R[1, 0] + vr[1] * R[1, 1] + vr[2] * R[1, 2]) / va
+            return va
+        # sideslip: e2^T v_r; e2^T [a]x = (a2, 0, -a0)
+        H[4] = 1.0
+        for j in range(3):
+            H[6 + j] = -(a[2] * W[0, j] - a[0] * W[2, j])
+        if iw >= 0:
+            H[iw] = -R[0, 1]
+            H[iw + 1] = -R[1, 1]
+        return vr[1]
+    if kind in (GPS_VEL, ZERO_VELOCITY):
+        # rows of R V and of -R [V]x W for the NED axes
+        rows = np.zeros((3, n))
+        vel = np.empty(3)
+        for j in range(3):
+            c0 = v * W[2, j] - w * W[1, j]
+            c1 = w * W[0, j] - u * W[2, j]
+            c2 = u * W[1, j] - v * W[0, j]
+            for i in range(3):
+                rows[i, 6 + j] = -(R[i, 0] * c0 + R[i, 1] * c1 + R[i, 2] * c2)
+        for i in range(3):
+            vel[i] = R[i, 0] * u + R[i, 1] * v + R[i, 2] * w
+            for j in range(3):
+                rows[i, 3 + j] = R[i, j]
+        if comp < 3:
+            for j in range(n):
+                H[j] = rows[comp, j]
+            return vel[comp]
+        vg = max(math.hypot(vel[0], vel[1]), 1e-3)
+        if comp == 3:
+            for j in range(n):
+                H[j] = (vel[0] * rows[0, j] + vel[1] * rows[1, j]) / vg
+            return vg
+        for j in range(n):
+            H[j] = (-vel[1] * rows[0, j] + vel[0] * rows[1, j]) / (vg * vg)
+        return math.atan2(vel[1], vel[0])
+    # body-frame unit vectors: magnetometer (field) and sun (values[3:6])
+    ref = np.empty(3)
+    if kind == MAG:
+        ref[0], ref[1], ref[2] = field[0], field[1], field[2]
+    else:
+        ref[0], ref[1], ref[2] = values[3], values[4], values[5]
+    b = np.empty(3)
+    for i in range(3):
+        b[i] = R[0, i] * ref[0] + R[1, i] * ref[1] + R[2, i] * ref[2]
+    # d(R^T a)/dTheta = [b]x W: row comp of [b]x times W
+    bx = np.empty((3, 3))
+    bx[0, 0], bx[0, 1], bx[0, 2] = 0.0, -b[2], b[1]
+    bx[1, 0], bx[1, 1], bx[1, 2] = b[2], 0.0, -b[0]
+    bx[2, 0], bx[2, 1], bx[2, 2] = -b[1], b[0], 0.0
+    for j in range(3):
+        H[6 + j] = bx[comp, 0] * W[0, j] + bx[comp, 1] * W[1, j] + bx[comp, 2] * W[2, j]
+    h = b[comp]
+    if kind == MAG:
+        ibm = layout[L_BM]
+        if ibm >= 0:
+            H[ibm + comp] = 1.0
+            h += x[ibm + comp]
+    return h
+
+
+@njit(cache=True)
+def propagate_state(x, gyro, accel, dt, g, layout, R, S, W, k1, k2, k3, k4, xt):
+    """RK4 step of the state over ``dt`` [s] with the IMU input held; roll and yaw wrapped to [-pi, pi)."""
+    n = x.shape[0]
+    derivative(x, gyro, accel, g, layout, R, S, W, k1)
+    for i in range(n):
+        xt[i] = x[i] + 0.5 * dt * k1[i]
+    derivative(xt, gyro, accel, g, layout, R, S, W, k2)
+    for i in range(n):
+        xt[i] = x[i] + 0.5 * dt * k2[i]
+    derivative(xt, gyro, accel, g, layout, R, S, W, k3)
+    for i in range(n):
+        xt[i] = x[i] + dt * k3[i]
+    derivative(xt, gyro, accel, g, layout, R, S, W, k4)
+    for i in range(n):
+        x[i] += dt / 6.0 * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i])
+    x[6] = ekf_core.wrap_pi(x[6])
+    x[8] = ekf_core.wrap_pi(x[8])
+
+
+@njit(cache=True)
+def component_range(kind, values, paper_vel, vmin):
+    """First and last+1 component of an event (GPS velocity in paper mode: ground speed and course, none when
+    the GPS ground speed is below ``vmin``)."""
+    if kind in (BARO, AIRSPEED, SIDESLIP):
+        return 0, 1
+    if kind == SUN:
+        return 0, 2
+    if kind == GPS_VEL and paper_vel:
+        if math.hypot(values[0], values[1]) < vmin:
+            return 3, 3
+        return 3, 5
+    return 0, 3
+
+
+@njit(cache=True)
+def measured_value(kind, comp, values, variances):
+    """Measured value ``z`` and variance ``R`` of a scalar component (paper-mode ground speed/course derived
+    from the NED velocity, eq 9 corrected: sigma_chi = sigma_V / V_g)."""
+    if kind == GPS_VEL and comp >= 3:
+        vg = math.hypot(values[0], values[1])
+        if comp == 3:
+            return vg, variances[0]
+        return math.atan2(values[1], values[0]), variances[0] / (vg * vg)
+    return values[comp], variances[comp]
+
+
+@njit(cache=True)
+def _flush_covariance(P, x_cov, acc, g, params, layout, rw_var, min_var, max_var, R, S, W, A, F, Qc, work, active,
+                      counters):
+    """Propagate P over the accumulated interval ``acc[0]`` with the mean inputs ``acc[1:7] / acc[0]``."""
+    dt = acc[0]
+    mean_gyro = acc[1:4] / dt
+    jacobian(x_cov, mean_gyro, g, layout, R, S, W, A)
+    ekf_core.transition_matrix(A, dt, F)
+    process_noise(x_cov, params[P_NG2], params[P_NA2], rw_var, R, S, W, Qc)
+    for i in range(Qc.shape[0]):
+        for j in range(Qc.shape[0]):
+            Qc[i, j] *= dt
+    ekf_core.propagate_covariance(P, F, Qc, work, active)
+    counters[C_FLUSHES] += 1
+    if counters[C_FLUSHES] % PD_CHECK_EVERY == 0:
+        if ekf_core.repair_covariance(P, min_var, max_var, work, EIG_FLOOR):
+            counters[C_REPAIRS] += 1
+    else:
+        ekf_core.limit_variances(P, min_var, max_var)
+    for i in range(7):
+        acc[i] = 0.0
+
+
+@njit(cache=True)
+def run_kernel(imu_t, imu_gyro, imu_accel, ev_t, ev_kind, ev_imu, ev_val, ev_var, x0, P0, layout, params,
+               gates, rw_var, min_var, max_var, out_f, out_x, out_sx, diag_f, diag_i, counters):
+    """The full-state direct filter over a whole log (one compiled loop; see the module docstring).
+
+    Parameters
+    ----------
+    imu_t, imu_gyro, imu_accel : ndarrays (N,), (N, 3), (N, 3)
+        IMU rows (:class:`estimators.events.ImuSamples`).
+    ev_t, ev_kind, ev_imu, ev_val, ev_var : ndarrays
+        Events (:class:`estimators.events.MeasurementEvents`).
+    x0, P0 : ndarrays (n,), (n, n)
+        Initial state and covariance.
+    layout : int64 (4,)
+        Optional blocks (:func:`layout_of`).
+    params : float64 (N_PARAMS,)
+        Scalars (``P_*`` slots).
+    gates : float64 (9,)
+        Gate per event kind (inf: ungated).
+    rw_var : float64 (n,)
+        Random-walk densities squared.
+    min_var, max_var : float64 (n,)
+        Variance limits.
+    out_f : (K, 23) output per OUTPUT event (:data:`OUT_COLUMNS`); out_x, out_sx : (K, n) state and its std.
+    diag_f, diag_i : diagnostics arrays; counters : int64 (N_COUNTERS,).
+    """
+    n = x0.shape[0]
+    x = x0.copy()
+    P = P0.copy()
+    x_safe = x0.copy()
+    x_cov = x0.copy()
+    x_err = np.zeros(n)
+    R = np.empty((3, 3))
+    S = np.empty((3, 3))
+    W = np.empty((3, 3))
+    A = np.empty((n, n))
+    F = np.empty((n, n))
+    Qc = np.empty((n, n))
+    work = np.empty((n, n))
+    active = np.empty(n, dtype=np.bool_)
+    H = np.empty(n)
+    H3 = np.empty((3, n))
+    dx = np.empty(n)
+    ph = np.empty(n)
+    k1 = np.empty(n)
+    k2 = np.empty(n)
+    k3 = np.empty(n)
+    k4 = np.empty(n)
+    xt = np.empty(n)
+    h3 = np.empty(3)
+    out_row = np.empty(out_f.shape[1])
+    acc = np.zeros(7)  # dt, sum gyro dt, sum accel dt
+    g = params[P_G]
+    cov_dt = params[P_COV_DT]
+    field = params[P_FIELD:P_FIELD + 3].copy()
+    paper_vel = params[P_PAPER_VEL] > 0.5
+    paper_indirect = params[P_PAPER_INDIRECT] > 0.5
+    vmin = params[P_VMIN]
+    last_gps_seen = -math.inf
+    last_gps_accept = -math.inf
+    n_out = 0
+    t = imu_t[0]
+    j = 0
+    m = ev_t.shape[0]
+    for k in range(imu_t.shape[0]):
+        gyro = imu_gyro[k]
+        accel = imu_accel[k]
+        while True:
+            at_event = j < m and ev_imu[j] == k
+            t_next = ev_t[j] if at_event else imu_t[k]
+            if t_next > t:
+                if acc[0] == 0.0:
+                    for i in range(n):
+                        x_cov[i] = x[i]
+                step = t_next - t
+                propagate_state(x, gyro, accel, step, g, layout, R, S, W, k1, k2, k3, k4, xt)
+                acc[0] += step
+                for i in range(3):
+                    acc[1 + i] += gyro[i] * step
+                    acc[4 + i] += accel[i] * step
+                t = t_next
+                if acc[0] >= cov_dt * (1.0 - 1e-9):
+                    _flush_covariance(P, x_cov, acc, g, params, layout, rw_var, min_var, max_var, R, S, W, A, F,
+                                      Qc, work, active, counters)
+                    if not ekf_core.is_healthy(x, P):
+                        ekf_core.reset_filter(x, P, x_safe, P0)
+                        counters[C_RESETS] += 1
+            if not at_event:
+                break
+            kind = ev_kind[j]
+            values = ev_val[j]
+            if kind == OUTPUT:
+                if not ekf_core.is_healthy(x, P):
+                    ekf_core.reset_filter(x, P, x_safe, P0)
+                    counters[C_RESETS] += 1
+                for i in range(n):
+                    x_safe[i] = x[i]
+                _output_row(x, P, layout, field, R, S, W, H, t, out_row)
+                ekf_core.record_output(out_f, n_out, out_row)
+                if n_out < out_x.shape[0]:
+                    for i in range(n):
+                        out_x[n_out, i] = x[i]
+                        out_sx[n_out, i] = math.sqrt(max(P[i, i], 0.0))
+                n_out += 1
+                j += 1
+                continue
+            if abs(x[7]) > PITCH_GUARD_RAD and kind != BARO and kind != GPS_POS:
+                counters[C_PITCH_GUARD] += 1
+                j += 1
+                continue
+            if kind == GPS_POS and (t - last_gps_seen > params[P_GPS_OUTAGE_S]
+                                    or t - last_gps_accept > params[P_GPS_REJECT_S]):
+                # (re)acquisition: position to GPS, variances to R, cross-covariances zeroed (math note 2.3)
+                for c in range(3):
+                    x[c] = values[c]
+                    for i in range(n):
+                        P[c, i] = 0.0
+                        P[i, c] = 0.0
+                    P[c, c] = ev_var[j, c]
+                if last_gps_seen > -math.inf:
+                    counters[C_GPS_RESETS] += 1
+                last_gps_seen = t
+                last_gps_accept = t
+                j += 1
+                continue
+            gate = gates[kind]
+            c0, c1 = component_range(kind, values, paper_vel, vmin)
+            if kind == SUN:
+                # tangent basis of the predicted sun direction at the prior
+                for c in range(3):
+                    h3[c] = measurement(x, kind, c, values, field, layout, R, S, W, H)
+                    for i in range(n):
+                        H3[c, i] = H[i]
+                basis = _tangent_basis(h3)
+            if paper_indirect:
+                for i in range(n):
+                    x_err[i] = 0.0
+            any_accepted = False
+            for c in range(c0, c1):
+                if kind == SUN:
+                    if not paper_indirect:
+                        for cc in range(3):
+                            h3[cc] = measurement(x, kind, cc, values, field, layout, R, S, W, H)
+                            for i in range(n):
+                                H3[cc, i] = H[i]
+                    nu = 0.0
+                    for cc in range(3):
+                        nu += basis[cc, c] * (values[cc] - h3[cc])
+                    for i in range(n):
+                        H[i] = basis[0, c] * H3[0, i] + basis[1, c] * H3[1, i] + basis[2, c] * H3[2, i]
+                    r_var = ev_var[j, c]
+                else:
+                    h = measurement(x, kind, c, values, field, layout, R, S, W, H)
+                    z, r_var = measured_value(kind, c, values, ev_var[j])
+                    nu = z - h
+                    if kind == GPS_VEL and c == 4:
+                        nu = ekf_core.wrap_pi(nu)
+                if paper_indirect:
+                    # eq 49 corrected: innovation of the error state, z - h(x_hat-) - H x_err
+                    for i in range(n):
+                        nu -= H[i] * x_err[i]
+                accepted, s_var, nis = ekf_core.scalar_update(P, H, nu, r_var, gate, dx, ph)
+                counters[C_UPDATES] += 1
+                ekf_core.record_update(diag_f, diag_i, counters, t, kind, c, nu, s_var, nis, accepted)
+                if accepted:
+                    any_accepted = True
+                    if paper_indirect:
+                        for i in range(n):
+                            x_err[i] += dx[i]
+                    else:
+                        for i in range(n):
+                            x[i] += dx[i]
+                        x[6] = ekf_core.wrap_pi(x[6])
+                        x[8] = ekf_core.wrap_pi(x[8])
+            if paper_indirect:
+                for i in range(n):
+                    x[i] += x_err[i]
+                x[6] = ekf_core.wrap_pi(x[6])
+                x[8] = ekf_core.wrap_pi(x[8])
+            if kind == GPS_POS:
+                last_gps_seen = t
+                if any_accepted:
+                    last_gps_accept = t
+            j += 1
+    if acc[0] > 0.0:
+        _flush_covariance(P, x_cov, acc, g, params, layout, rw_var, min_var, max_var, R, S, W, A, F, Qc, work,
+                          active, counters)
+    counters[C_OUTPUTS] = n_out
+    return x, P
+
+
+@njit(cache=True)
+def _tangent_basis(h):
+    """(3, 2) orthonormal basis of the plane perpendicular to ``h`` (math note 8.5)."""
+    norm = math.sqrt(h[0] * h[0] + h[1] * h[1] + h[2] * h[2])
+    u0, u1, u2 = h[0] / norm, h[1] / norm, h[2] / norm
+    if abs(u0) < 0.9:
+        a0, a1, a2 = 1.0, 0.0, 0.0
+    else:
+        a0, a1, a2 = 0.0, 1.0, 0.0
+    d = a0 * u0 + a1 * u1 + a2 * u2
+    t0, t1, t2 = a0 - d * u0, a1 - d * u1, a2 - d * u2
+    tn = math.sqrt(t0 * t0 + t1 * t1 + t2 * t2)
+    t0, t1, t2 = t0 / tn, t1 / tn, t2 / tn
+    basis = np.empty((3, 2))
+    basis[0, 0], basis[1, 0], basis[2, 0] = t0, t1, t2
+    basis[0, 1] = u1 * t2 - u2 * t1
+    basis[1, 1] = u2 * t0 - u0 * t2
+    basis[2, 1] = u0 * t1 - u1 * t0
+    return basis
+
+
+@njit(cache=True)
+def _output_row(x, P, layout, field, R, S, W, H, t, out):
+    """Fill one output row (:data:`OUT_COLUMNS`)."""
+    n = x.shape[0]
+    out[0] = t
+    for i in range(3):
+        out[1 + i] = x[6 + i]
+        out[4 + i] = x[i]
+        out[12 + i] = math.sqrt(max(P[6 + i, 6 + i], 0.0))
+        out[15 + i] = math.sqrt(max(P[i, i], 0.0))
+    dummy = np.zeros(6)
+    for c in range(3):
+        out[7 + c] = measurement(x, GPS_VEL, c, dummy, field, layout, R, S, W, H)
+        var = 0.0
+        for i in range(n):
+            if H[i] != 0.0:
+                for jj in range(n):
+                    var += H[i] * P[i, jj] * H[jj]
+        out[18 + c] = math.sqrt(max(var, 0.0))
+    iw = layout[L_W]
+    for c in range(2):
+        if iw >= 0:
+            out[10 + c] = x[iw + c]
+            out[21 + c] = math.sqrt(max(P[iw + c, iw + c], 0.0))
+        else:
+            out[10 + c] = math.nan
+            out[21 + c] = math.nan
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# orchestration
+
+
+@dataclass(frozen=True)
+class KernelInputs:
+    """Arrays handed to :func:`run_kernel` (and to the NumPy twin)."""
+
+    table: tuple[StateSpec, ...]
+    x0: np.ndarray
+    P0: np.ndarray
+    layout: np.ndarray
+    params: np.ndarray
+    gates: np.ndarray
+    rw_var: np.ndarray
+    min_var: np.ndarray
+    max_var: np.ndarray
+
+
+def kernel_inputs(inputs: ReplayInputs, config: EstimatorConfig, *, mode: str = "direct") -> KernelInputs:
+    """State table, x0, P0 and the scalar parameters of one run."""
+    if mode not in ("direct", "paper_indirect"):
+        raise ValueError(f"mode must be 'direct' or 'paper_indirect', got {mode!r}")
+    plan, align = inputs.plan, inputs.alignment
+    # without GPS the accelerometer bias has no absolute velocity reference: not estimated (math note 7.3)
+    table = state_table(config, accel_bias=config.accel_bias_states and plan.has_gps, wind=plan.has_airspeed,
+                        mag_bias=plan.has_mag and config.mag_bias_states,
+                        baro_bias=plan.has_baro and plan.has_gps and config.baro_bias_state,
+                        absolute_yaw=align.yaw_source != "none" or plan.has_sun)
+    names = [s.name for s in table]
+    n = len(table)
+    x0 = np.zeros(n)
+    x0[I_P:I_P + 3] = align.position_ned_m
+    r_nb = euler_to_matrix(align.roll_rad, align.pitch_rad, align.yaw_rad)
+    x0[I_V:I_V + 3] = r_nb.T @ align.velocity_ned_m_s
+    x0[I_TH:I_TH + 3] = align.roll_rad, align.pitch_rad, align.yaw_rad
+    x0[I_BG:I_BG + 3] = align.gyro_bias_rad_s
+    sigma0 = np.array([s.initial_sigma for s in table])
+    P0 = np.diag(sigma0 ** 2)
+    rw_var = np.array([s.process_sigma ** 2 for s in table])
+    params = np.zeros(N_PARAMS)
+    params[P_G] = inputs.gravity_m_s2
+    params[P_NG2] = config.noise.gyro_noise_rad_s_sqrt_hz ** 2
+    params[P_NA2] = config.noise.accel_noise_m_s2_sqrt_hz ** 2
+    params[P_COV_DT] = 1.0 / config.timing.covariance_rate_hz
+    params[P_FIELD:P_FIELD + 3] = inputs.mag_field_ned
+    params[P_GPS_REJECT_S] = config.timing.gps_reset_after_s
+    params[P_GPS_OUTAGE_S] = GPS_OUTAGE_RESET_S
+    params[P_VMIN] = config.timing.min_ground_speed_m_s
+    params[P_PAPER_VEL] = 1.0 if config.gps_velocity_mode == "paper" else 0.0
+    params[P_PAPER_INDIRECT] = 1.0 if mode == "paper_indirect" else 0.0
+    gate_cfg = config.gates
+    gates = np.full(len(events.SENSOR_NAMES), math.inf)
+    gates[BARO], gates[AIRSPEED], gates[GPS_POS] = gate_cfg.baro, gate_cfg.airspeed, gate_cfg.gps_pos
+    gates[GPS_VEL], gates[MAG], gates[SUN] = gate_cfg.gps_vel, gate_cfg.mag, gate_cfg.sun
+    max_var = np.full(n, 1e12)
+    max_var[names.index("yaw")] = math.pi ** 2  # yaw std capped at 180 deg (math note 7.2)
+    return KernelInputs(table=table, x0=x0, P0=P0, layout=layout_of(table), params=params, gates=gates,
+                        rw_var=rw_var, min_var=np.full(n, MIN_VARIANCE), max_var=max_var)
+
+
+def diagnostics_capacity(ev: events.MeasurementEvents) -> int:
+    """Upper bound of the number of scalar updates of a run."""
+    per_kind = np.array([1, 1, 1, 3, 3, 3, 2, 3, 0])
+    return int(per_kind[ev.kind].sum())
+
+
+def run(flight_log: FlightLog, inputs: ReplayInputs, config: EstimatorConfig, *, backend: str = "numba",
+        mode: str = "direct") -> EstimatorRun:
+    """Run the full-state direct filter on prepared inputs (the registry entry of :mod:`estimators.api`).
+
+    Parameters
+    ----------
+    flight_log : FlightLog
+        The log (unused beyond ``inputs``; part of the common estimator signature).
+    inputs : ReplayInputs
+        From :func:`estimators.events.build_replay_inputs`.
+    config : EstimatorConfig
+    backend : {"numba", "numpy"}
+        Compiled kernel or the plain-NumPy twin (slow; tests only).
+    mode : {"direct", "paper_indirect"}
+        See the module docstring.
+    """
+    del flight_log
+    started = time.perf_counter()
+    k = kernel_inputs(inputs, config, mode=mode)
+    ev, imu = inputs.events, inputs.imu
+    n = len(k.x0)
+    n_out = ev.count(OUTPUT)
+    out_f = np.full((n_out, len(OUT_COLUMNS)), np.nan)
+    out_x = np.full((n_out, n), np.nan)
+    out_sx = np.full((n_out, n), np.nan)
+    capacity = diagnostics_capacity(ev)
+    diag_f = np.zeros((capacity, 4))
+    diag_i = np.zeros((capacity, 3), dtype=np.int64)
+    counters = np.zeros(N_COUNTERS, dtype=np.int64)
+    args = (imu.time_s, imu.gyro_rad_s, imu.accel_m_s2, ev.time_s, ev.kind, ev.imu_index, ev.values, ev.variances,
+            k.x0, k.P0, k.layout, k.params, k.gates, k.rw_var, k.min_var, k.max_var, out_f, out_x, out_sx, diag_f,
+            diag_i, counters)
+    kernel_started = time.perf_counter()
+    if backend == "numba":
+        x_final, _ = run_kernel(*args)
+    elif backend == "numpy":
+        from estimators.full_state_direct_numpy import run_reference
+
+        x_final, _ = run_reference(*args)
+    else:
+        raise ValueError(f"backend must be 'numba' or 'numpy', got {backend!r}")
+    kernel_s = time.perf_counter() - kernel_started
+    return _assemble(inputs, k, out_f, out_x, out_sx, diag_f, diag_i, counters, x_final,
+                     timings={"kernel": kernel_s, "total": time.perf_counter() - started}, mode=mode,
+                     config_accel_bias=config.accel_bias_states)
+
+
+def _assemble(inputs, k: KernelInputs, out_f, out_x, out_sx, diag_f, diag_i, counters, x_final, *, timings, mode,
+              config_accel_bias):
+    plan = inputs.plan
+    col = {c: i for i, c in enumerate(OUT_COLUMNS)}
+    o = out_f[:counters[C_OUTPUTS]]
+    deg = np.degrees
+    std = {"roll_deg_std": deg(o[:, col["roll_std"]]), "pitch_deg_std": deg(o[:, col["pitch_std"]]),
+           "yaw_deg_std": deg(o[:, col["yaw_std"]]), "pos_n_m_std": o[:, col["pn_std"]],
+           "pos_e_m_std": o[:, col["pe_std"]], "alt_m_std": o[:, col["pd_std"]],
+           "vn_m_s_std": o[:, col["vn_std"]], "ve_m_s_std": o[:, col["ve_std"]], "vd_m_s_std": o[:, col["vd_std"]],
+           "wind_n_m_s_std": o[:, col["wn_std"]], "wind_e_m_s_std": o[:, col["we_std"]]}
+    states = states_frame(o[:, col["time_s"]], o[:, col["roll"]], o[:, col["pitch"]], o[:, col["yaw"]],
+                          o[:, col["pn"]:col["pd"] + 1], o[:, col["vn"]:col["vd"] + 1],
+                          o[:, col["wn"]:col["we"] + 1], inputs.origin, std=std, navigation=plan.has_gps,
+                          wind=plan.has_airspeed)
+    diagnostics = diagnostics_frame(diag_f, diag_i, int(counters[C_DIAG]))
+    names = [s.name for s in k.table]
+    degradations = list(plan.degradations)
+    if "bax" not in names and config_accel_bias:
+        degradations.append("no GPS: accelerometer bias not estimated (no absolute velocity reference)")
+    warnings = list(inputs.warnings)
+    if counters[C_RESETS]:
+        warnings.append(f"filter diverged and was reset {counters[C_RESETS]} times")
+    if counters[C_PITCH_GUARD]:
+        warnings.append(f"{counters[C_PITCH_GUARD]} updates skipped at |pitch| > 85 deg (Euler singularity)")
+    if counters[C_DIAG_DROPPED]:
+        warnings.append(f"{counters[C_DIAG_DROPPED]} diagnostics rows dropped")
+    final = {name: float(x_final[i]) for i, name in enumerate(names)}
+    details = {
+        "mode": mode,
+        "states": names,
+        "final_state": final,
+        "alignment": {"tilt_source": inputs.alignment.tilt_source, "yaw_source": inputs.alignment.yaw_source,
+                      "still_window_s": inputs.alignment.still_window_s},
+        "gps_delay_s": inputs.gps_delay_s,
+        "baro_offset_m": inputs.baro_offset_m,
+        "mag_field_source": inputs.mag_field_source,
+        "origin": {"lat_deg": inputs.origin.lat_deg, "lon_deg": inputs.origin.lon_deg,
+                   "alt_m": inputs.origin.alt_m, "source": inputs.origin.source},
+        "final_state_std": {name: float(out_sx[counters[C_OUTPUTS] - 1, i]) if counters[C_OUTPUTS] else math.nan
+                            for i, name in enumerate(names)},
+    }
+    used = tuple(s for s in plan.used)
+    report = EstimatorReport(estimator=NAME, used=used, skipped=dict(plan.skipped),
+                             degradations=tuple(degradations), resets=int(counters[C_RESETS]),
+                             gps_resets=int(counters[C_GPS_RESETS]), covariance_repairs=int(counters[C_REPAIRS]),
+                             n_imu_samples=len(inputs.imu.time_s), n_updates=int(counters[C_UPDATES]),
+                             timings_s=timings, warnings=tuple(warnings), details=details)
+    return EstimatorRun(states=states, diagnostics=diagnostics, report=report)

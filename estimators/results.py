@@ -1,0 +1,175 @@
+"""What an estimator run returns, and the builders every estimator uses to produce it (one output contract).
+
+The output contract (issue 4, "Interfaces"): ``states`` has exactly the columns :data:`STATE_COLUMNS` (NaN where an
+estimator has no such quantity) plus optional ``<column>_std`` columns and ``pos_n_m_std`` / ``pos_e_m_std``
+(horizontal position standard deviation [m]); ``time_s`` is the log clock, yaw in [-180, 180), altitude above MSL,
+lat/lon WGS-84. ``diagnostics`` has one row per scalar measurement update with the columns
+:data:`DIAGNOSTIC_COLUMNS`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import pandas as pd
+
+from estimators import environment
+from estimators.events import COMPONENT_NAMES, SENSOR_NAMES, Origin
+
+#: Columns of the states table, in order.
+STATE_COLUMNS = ("estimator", "time_s", "roll_deg", "pitch_deg", "yaw_deg", "lat_deg", "lon_deg", "alt_m",
+                 "vn_m_s", "ve_m_s", "vd_m_s", "wind_n_m_s", "wind_e_m_s")
+#: Optional standard-deviation columns (same units as their quantity; horizontal position in metres).
+STD_COLUMNS = ("roll_deg_std", "pitch_deg_std", "yaw_deg_std", "pos_n_m_std", "pos_e_m_std", "alt_m_std",
+               "vn_m_s_std", "ve_m_s_std", "vd_m_s_std", "wind_n_m_s_std", "wind_e_m_s_std")
+#: Columns of the diagnostics table, in order.
+DIAGNOSTIC_COLUMNS = ("estimator", "time_s", "sensor", "component", "innovation", "innovation_var", "nis",
+                      "accepted")
+
+
+@dataclass(frozen=True)
+class EstimatorReport:
+    """What one estimator did on one log.
+
+    Attributes
+    ----------
+    estimator : str
+        Registry name.
+    used : tuple of str
+        Sensors fused (diagnostics sensor names).
+    skipped : dict of str -> str
+        Sensor -> reason it was not used.
+    degradations : tuple of str
+        Degraded modes applied (math note 7).
+    resets : int
+        Divergence resets (non-finite state or covariance -> last healthy state, initial covariance).
+    gps_resets : int
+        Position/velocity resets to GPS after a long rejection or outage (math note 2.3).
+    covariance_repairs : int
+        Covariance matrices that failed the positive-definiteness test and were repaired.
+    n_imu_samples : int
+        IMU rows processed.
+    n_updates : int
+        Scalar measurement updates attempted (accepted + rejected).
+    timings_s : dict of str -> float
+        Wall times [s]: ``prepare`` (events), ``kernel`` (compiled loop), ``total``.
+    warnings : tuple of str
+        Everything noteworthy, in words.
+    details : dict
+        Estimator-specific facts (alignment, final bias estimates ...), JSON-serialisable values.
+    """
+
+    estimator: str
+    used: tuple[str, ...]
+    skipped: dict[str, str]
+    degradations: tuple[str, ...]
+    resets: int = 0
+    gps_resets: int = 0
+    covariance_repairs: int = 0
+    n_imu_samples: int = 0
+    n_updates: int = 0
+    timings_s: dict[str, float] = field(default_factory=dict)
+    warnings: tuple[str, ...] = ()
+    details: dict = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class EstimatorRun:
+    """One estimator's result on one log.
+
+    Attributes
+    ----------
+    states : pandas.DataFrame
+        :data:`STATE_COLUMNS` without ``estimator`` (plus optional std columns), one row per output epoch.
+    diagnostics : pandas.DataFrame
+        :data:`DIAGNOSTIC_COLUMNS` without ``estimator``, one row per scalar update.
+    report : EstimatorReport
+    """
+
+    states: pd.DataFrame
+    diagnostics: pd.DataFrame
+    report: EstimatorReport
+
+
+def states_frame(time_s, roll_rad, pitch_rad, yaw_rad, position_ned_m, velocity_ned_m_s, wind_ne_m_s,
+                 origin: Origin, *, std: dict[str, np.ndarray] | None = None, navigation: bool = True,
+                 wind: bool = True) -> pd.DataFrame:
+    """The states table of one estimator (without the ``estimator`` column).
+
+    Parameters
+    ----------
+    time_s : ndarray (k,)
+        Output epochs [s], log clock.
+    roll_rad, pitch_rad, yaw_rad : ndarray (k,)
+        ZYX Euler angles [rad]; yaw is wrapped to [-180, 180) deg.
+    position_ned_m : ndarray (k, 3)
+        Position relative to ``origin`` [m]; down = -(alt - origin alt).
+    velocity_ned_m_s : ndarray (k, 3)
+        Ground velocity NED [m/s].
+    wind_ne_m_s : ndarray (k, 2) or None
+        Wind north/east [m/s]; None -> NaN columns.
+    origin : Origin
+        NED origin; without a geodetic origin, lat/lon are NaN.
+    std : dict, optional
+        ``{column: values}`` for any of :data:`STD_COLUMNS` (degrees for the angles).
+    navigation : bool
+        False (no GPS): lat/lon and velocities are NaN (altitude is kept).
+    wind : bool
+        False: wind columns are NaN.
+    """
+    time_s = np.asarray(time_s, dtype=float)
+    k = len(time_s)
+    position = np.asarray(position_ned_m, dtype=float).reshape(k, 3)
+    velocity = np.asarray(velocity_ned_m_s, dtype=float).reshape(k, 3)
+    nan = np.full(k, np.nan)
+    if navigation and origin.source == "gps":
+        lat, lon, alt = environment.ned_to_geodetic(position[:, 0], position[:, 1], position[:, 2],
+                                                    origin.lat_deg, origin.lon_deg, origin.alt_m)
+    else:
+        lat, lon, alt = nan, nan, origin.alt_m - position[:, 2]
+    frame = {
+        "time_s": time_s,
+        "roll_deg": np.degrees(roll_rad),
+        "pitch_deg": np.degrees(pitch_rad),
+        "yaw_deg": (np.degrees(yaw_rad) + 180.0) % 360.0 - 180.0,
+        "lat_deg": np.asarray(lat, dtype=float).reshape(k),
+        "lon_deg": np.asarray(lon, dtype=float).reshape(k),
+        "alt_m": np.asarray(alt, dtype=float).reshape(k),
+        "vn_m_s": velocity[:, 0] if navigation else nan,
+        "ve_m_s": velocity[:, 1] if navigation else nan,
+        "vd_m_s": velocity[:, 2] if navigation else nan,
+        "wind_n_m_s": np.asarray(wind_ne_m_s)[:, 0] if wind and wind_ne_m_s is not None else nan,
+        "wind_e_m_s": np.asarray(wind_ne_m_s)[:, 1] if wind and wind_ne_m_s is not None else nan,
+    }
+    for name, values in (std or {}).items():
+        if name not in STD_COLUMNS:
+            raise ValueError(f"unknown std column {name!r}")
+        blank = (not navigation and name[:2] in ("po", "vn", "ve", "vd")) or (not wind and name.startswith("wind"))
+        frame[name] = nan if blank else np.asarray(values, dtype=float).reshape(k)
+    # a yaw that wrapped to exactly 180.0 by rounding
+    frame["yaw_deg"] = np.where(frame["yaw_deg"] >= 180.0, frame["yaw_deg"] - 360.0, frame["yaw_deg"])
+    return pd.DataFrame(frame)
+
+
+def diagnostics_frame(diag_f: np.ndarray, diag_i: np.ndarray, count: int) -> pd.DataFrame:
+    """The diagnostics table from the kernels' recorder arrays (see :mod:`estimators.ekf_core`).
+
+    ``sensor`` and ``component`` become categorical names (:data:`estimators.events.SENSOR_NAMES`,
+    :data:`estimators.events.COMPONENT_NAMES`), ``accepted`` a bool.
+    """
+    diag_f, diag_i = diag_f[:count], diag_i[:count]
+    sensor_codes = diag_i[:, 0]
+    sensors = np.asarray(SENSOR_NAMES, dtype=object)[sensor_codes]
+    width = max(len(c) for c in COMPONENT_NAMES)
+    table = np.array([tuple(c) + ("",) * (width - len(c)) for c in COMPONENT_NAMES], dtype=object)
+    components = table[sensor_codes, diag_i[:, 1]]
+    return pd.DataFrame({
+        "time_s": diag_f[:, 0],
+        "sensor": pd.Categorical(sensors, categories=SENSOR_NAMES),
+        "component": pd.Categorical(components),
+        "innovation": diag_f[:, 1],
+        "innovation_var": diag_f[:, 2],
+        "nis": diag_f[:, 3],
+        "accepted": diag_i[:, 2].astype(bool),
+    })
