@@ -214,7 +214,8 @@ def calibrate(log: FlightLog, *, segment: Segment | None = None, fir: Mapping[st
     tau : TauSelection
         Eq 52 factor (see :mod:`calib.tau`).
     gravity : GravityReference
-        g for the stationary accelerometer bias (the caller computes local gravity; calib has no geodesy).
+        g for the stationary accelerometer bias (local gravity is computed by the caller, which may use the
+        estimators layer: calib never imports it).
     inflight_bias : InflightBias, optional
         Bias states of an in-flight filter to store beside the stationary ones.
     stationary_criteria, steady_criteria
