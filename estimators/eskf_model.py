@@ -352,14 +352,12 @@ def inject(x, dx, P):
 # Measurement models: each returns h(x) and writes the row H = dh/d(dx) into ``H`` (length NE, zeroed first)
 # ----------------------------------------------------------------------------------------------------------------
 @njit(cache=True)
-def h_height(x, with_baro_bias, H):
-    """Height above the origin [m]: ``h = -p_d (+ b_b)``: barometer (with its offset state) or GPS altitude."""
+def h_baro(x, H):
+    """Barometric height above the origin [m]: ``h = -p_d + b_b`` (``b_b`` stays 0 when not estimated)."""
     H[:] = 0.0
     H[E_P + 2] = -1.0
-    if with_baro_bias:
-        H[E_BB] = 1.0
-        return x[X_BB] - x[X_P + 2]
-    return -x[X_P + 2]
+    H[E_BB] = 1.0
+    return x[X_BB] - x[X_P + 2]
 
 
 @njit(cache=True)
