@@ -79,7 +79,7 @@ def load_sun_log(path_or_bytes: Source, *, flight_log: FlightLog | None = None, 
         raise InputError(f"cannot put the sun-device times on the log clock: {why}; give the time offset "
                          "(UTC unix time of log time 0) explicitly", source=name)
     try:
-        raw = pd.read_csv(io.BytesIO(content), dtype=str, skipinitialspace=True)
+        raw = pd.read_csv(io.BytesIO(content), dtype=str, skipinitialspace=True, encoding="utf-8-sig")
     except (UnicodeDecodeError, pd.errors.ParserError, pd.errors.EmptyDataError) as exc:
         raise InputError(f"cannot read the CSV ({exc})", source=name) from exc
 

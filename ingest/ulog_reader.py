@@ -11,7 +11,11 @@ the first logged is kept, so every stream index is strictly increasing. A topic 
 (``ekf2_innovations`` in some PX4 1.6 logs) is skipped.
 
 Multi-instance topics: instance 0 (the primary), or the instance with the most samples when instance 0 was not
-logged; the stream's topic then reads ``"sensor_gps[1]"``.
+logged; the stream's topic then reads ``"sensor_gps[1]"`` (``"[0]"`` when other instances exist).
+
+Each stream's :class:`~ingest.flightlog.StreamInfo` (median rate, gaps) describes the sensor: it is computed on
+the sorted sample times (``sample_time_s``) where the topic logs them, since some topics publish two samples at
+once and their row spacing alone is bimodal.
 """
 
 from __future__ import annotations

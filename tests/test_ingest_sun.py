@@ -59,6 +59,12 @@ def test_ampere_columns_extra_columns_and_column_order():
     np.testing.assert_allclose(sun.index.to_numpy(), [100.0, 100.5])
 
 
+def test_spreadsheet_byte_order_mark_and_spaces():
+    text = "\ufeffunix_time_s, " + ", ".join(MA_COLUMNS) + "\n5.0, " + ", ".join(["2"] * 7) + "\n"
+    sun = load_sun_log(text.encode(), time_offset_s=0.0)
+    assert sun.index.tolist() == [5.0] and sun["i1_a"].iloc[0] == pytest.approx(2e-3)
+
+
 def test_iso_times_with_and_without_zone():
     text = csv_text("time_utc", ["2024-03-18T12:00:00Z", "2024-03-18T14:00:00.250+02:00", "2024-03-18T12:00:00.5"],
                     np.full((3, 7), 10.0))
