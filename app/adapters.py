@@ -15,13 +15,29 @@ from __future__ import annotations
 import hashlib
 import io
 import json
+import tempfile
+from pathlib import Path
 
+import numpy as np
 import pandas as pd
 import streamlit as st
 
 from app import samples, tables
 from app.workspace import LogEntry, Workspace
-from calib.segments import find_stationary_segments, find_steady_segments
+from calib.calibration import Calibration, FirSettings, allan_curves, calibrate, sensor_samples, with_tau
+from calib.export import calibration_to_dict
+from calib.fir import design_fir, edge_slice, zero_phase_lowpass
+from calib.px4_params import px4_parameters, write_px4_params
+from calib.segments import (
+    ACCEL_COLUMNS,
+    GYRO_COLUMNS,
+    Segment,
+    auto_segments,
+    find_stationary_segments,
+    find_steady_segments,
+    user_segment,
+)
+from calib.tau import user_tau
 from estimators.environment import geodetic_to_ned
 from ingest import FlightLog, InputError, SunDevice, load_flight_log
 from ingest.sun_log import with_sun
@@ -159,3 +175,81 @@ def flight_phases(root: str, sha256: str) -> pd.DataFrame:
     log = stored_log(root, sha256)
     return tables.phase_table(find_stationary_segments(log), find_steady_segments(log),
                               log.meta.start_time_s, log.meta.end_time_s)
+
+
+# ---------------------------------------------------------------------------------------------------- calibration
+#: FIR requests as hashable rows: (sensor, cutoff [Hz] or NaN for the default, taps or 0 for the default).
+FirRows = tuple[tuple[str, float, int], ...]
+
+
+@st.cache_resource(max_entries=4, show_spinner=False)
+def imu_norms(root: str, sha256: str) -> pd.DataFrame:
+    """Norms of the gyro [rad/s] and specific force [m/s^2] over the whole log (index ``time_s`` [s]), for picking
+    a calibration segment. A resource (not pickled per rerun): full-rate, read-only."""
+    imu = stored_log(root, sha256)["imu"]
+    return pd.DataFrame({"gyro_norm_rad_s": np.linalg.norm(imu[list(GYRO_COLUMNS)].to_numpy(float), axis=1),
+                         "accel_norm_m_s2": np.linalg.norm(imu[list(ACCEL_COLUMNS)].to_numpy(float), axis=1)},
+                        index=imu.index)
+
+
+@st.cache_data(max_entries=8, show_spinner="Searching stationary and steady segments ...")
+def candidate_segments(root: str, sha256: str) -> pd.DataFrame:
+    """Automatically found calibration segments (``kind``, ``start_s``, ``end_s``, ``reason``), best first."""
+    found = auto_segments(stored_log(root, sha256))
+    return pd.DataFrame([(s.kind, s.start_s, s.end_s, s.reason) for s in found],
+                        columns=["kind", "start_s", "end_s", "reason"])
+
+
+def _segment(log: FlightLog, window: tuple[float, float] | None) -> Segment | None:
+    return None if window is None else user_segment(log, *window)
+
+
+@st.cache_data(max_entries=16, show_spinner="Calibrating the sensors ...")
+def calibration(root: str, sha256: str, window: tuple[float, float] | None, fir: FirRows,
+                noise: str) -> Calibration:
+    """:func:`calib.calibration.calibrate` of a stored log over ``window`` [s] (None: automatic segments).
+
+    Parameters
+    ----------
+    fir : tuple of (sensor, cutoff_hz, numtaps)
+        Filter requests; NaN cutoff / 0 taps mean the rate-based default.
+    noise : {"sigma", "eta"}
+        Figure the eq 51 R matrices are built from.
+    """
+    log = stored_log(root, sha256)
+    settings = {sensor: FirSettings(None if np.isnan(cutoff) else float(cutoff), int(taps) or None)
+                for sensor, cutoff, taps in fir}
+    return calibrate(log, segment=_segment(log, window), fir=settings, noise=noise)
+
+
+@st.cache_data(max_entries=16, show_spinner=False)
+def raw_and_filtered(root: str, sha256: str, sensor: str, segment: tuple[float, float], fs_hz: float,
+                     cutoff_hz: float, numtaps: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Times [s], raw and zero-phase filtered samples (n, k) of ``sensor`` in its calibration segment, edges the
+    filter cannot reach dropped (as in the calibration itself)."""
+    log = stored_log(root, sha256)
+    time_s, values = sensor_samples(log, sensor, Segment(*segment, kind="user", reason="display"))
+    spec = design_fir(fs_hz, cutoff_hz, numtaps)
+    keep = edge_slice(len(time_s), spec)
+    return time_s[keep], values[keep], zero_phase_lowpass(values, spec)[keep]
+
+
+@st.cache_data(max_entries=8, show_spinner="Computing Allan deviations ...")
+def allan(root: str, sha256: str, window: tuple[float, float] | None, fir: FirRows,
+          noise: str) -> dict[str, list[pd.DataFrame]]:
+    """Allan deviation curves behind a calibration (empty without a stationary segment)."""
+    return allan_curves(stored_log(root, sha256), calibration(root, sha256, window, fir, noise))
+
+
+def with_user_tau(cal: Calibration, tau: float) -> Calibration:
+    """The calibration with a user-set tau (accelerometer R rebuilt; cheap, not cached)."""
+    return with_tau(cal, user_tau(tau))
+
+
+def calibration_files(cal: Calibration) -> tuple[str, str]:
+    """CALIB.json text and the PX4 ``.params`` text of a calibration."""
+    with tempfile.TemporaryDirectory() as directory:
+        params_path = write_px4_params(px4_parameters(cal), Path(directory) / "calib.params",
+                                       header=f"EKF2 noise from solarnav calibration of {cal.source}")
+        params_text = params_path.read_text()
+    return json.dumps(calibration_to_dict(cal), indent=2, allow_nan=False) + "\n", params_text

@@ -11,6 +11,7 @@ from collections.abc import Mapping
 import numpy as np
 import pandas as pd
 import plotly.graph_objects as go
+from plotly.subplots import make_subplots
 from tsdownsample import NaNMinMaxLTTBDownsampler
 
 #: Largest number of points drawn per trace.
@@ -49,7 +50,8 @@ def downsample_indices(x: np.ndarray, y: np.ndarray, max_points: int = MAX_POINT
     if n <= max_points:
         return np.arange(n)
     n_out = max(4, max_points - max_points % 2)
-    return np.asarray(_DOWNSAMPLER.downsample(np.asarray(x, float), np.asarray(y, float), n_out=n_out), dtype=np.int64)
+    keep = _DOWNSAMPLER.downsample(np.ascontiguousarray(x, float), np.ascontiguousarray(y, float), n_out=n_out)
+    return np.asarray(keep, dtype=np.int64)
 
 
 def line(x, y, name: str, *, max_points: int = MAX_POINTS, color: str | None = None, **kwargs) -> go.Scatter:
@@ -63,9 +65,10 @@ def line(x, y, name: str, *, max_points: int = MAX_POINTS, color: str | None = N
 def base_layout(fig: go.Figure, *, x_title: str = TIME_TITLE, y_title: str, height: int = 320,
                 title: str | None = None) -> go.Figure:
     """Common layout: axis titles (with units), compact margins, legend on top."""
-    fig.update_layout(height=height, margin={"l": 10, "r": 10, "t": 40 if title else 30, "b": 10},
-                      legend={"orientation": "h", "yanchor": "bottom", "y": 1.0, "x": 0.0},
-                      title={"text": title} if title else None, hovermode="x unified")
+    fig.update_layout(height=height, margin={"l": 10, "r": 10, "t": 80 if title else 40, "b": 10},
+                      legend={"orientation": "h", "yanchor": "bottom", "y": 1.01, "x": 0.0},
+                      title={"text": title, "x": 0.01, "xanchor": "left", "y": 0.99, "yanchor": "top"}
+                      if title else None, hovermode="x unified")
     fig.update_xaxes(title_text=x_title)
     fig.update_yaxes(title_text=y_title)
     return fig
@@ -116,4 +119,124 @@ def track_figure(tracks: Mapping[str, pd.DataFrame], max_points: int = MAX_POINT
     base_layout(fig, x_title="east [m]", y_title="north [m]", height=420, title="Track in local NED")
     fig.update_layout(hovermode="closest")
     fig.update_yaxes(scaleanchor="x", scaleratio=1)
+    return fig
+
+
+# ---------------------------------------------------------------------------------------------------- calibration
+SEGMENT_COLORS = {"stationary": "rgba(44,160,44,0.15)", "steady": "rgba(31,119,180,0.15)",
+                  "user": "rgba(214,39,40,0.18)"}
+AXIS_COLORS = ("#1f77b4", "#ff7f0e", "#2ca02c")
+
+
+def segment_figure(imu_norms: pd.DataFrame, segments: pd.DataFrame, max_points: int = MAX_POINTS) -> go.Figure:
+    """Gyro and specific-force norms over the whole log with the candidate and chosen segments shaded; drag a
+    box on it to pick a window.
+
+    Parameters
+    ----------
+    imu_norms : pandas.DataFrame
+        Index ``time_s`` [s]; columns ``gyro_norm_rad_s`` [rad/s], ``accel_norm_m_s2`` [m/s^2].
+    segments : pandas.DataFrame
+        Columns ``kind`` (stationary / steady / user), ``start_s``, ``end_s`` [s].
+    """
+    fig = make_subplots(rows=2, cols=1, shared_xaxes=True, vertical_spacing=0.06)
+    time_s = imu_norms.index.to_numpy(float)
+    for row, (column, name) in enumerate((("gyro_norm_rad_s", "|gyro|"), ("accel_norm_m_s2", "|specific force|")),
+                                         start=1):
+        fig.add_trace(line(time_s, imu_norms[column].to_numpy(float), name, max_points=max_points,
+                           color=AXIS_COLORS[row - 1]), row=row, col=1)
+    for seg in segments.itertuples(index=False):
+        fig.add_vrect(x0=seg.start_s, x1=seg.end_s, fillcolor=SEGMENT_COLORS.get(seg.kind, "rgba(0,0,0,0.1)"),
+                      line_width=2 if seg.kind == "user" else 0, line_color="#d62728", layer="below")
+    base_layout(fig, y_title="|gyro| [rad/s]", height=340, title="Calibration segment (drag a box to pick one)")
+    fig.update_yaxes(title_text="|specific force| [m/s^2]", row=2, col=1)
+    fig.update_xaxes(title_text="", row=1, col=1)
+    fig.update_xaxes(title_text=TIME_TITLE, row=2, col=1)
+    fig.update_layout(dragmode="select", selectdirection="h", hovermode="closest")
+    return fig
+
+
+def frequency_response_figure(freq_hz: np.ndarray, gain_single: np.ndarray, gain_zero_phase: np.ndarray,
+                              cutoff_hz: float) -> go.Figure:
+    """FIR magnitude response [dB] of one pass and of the zero-phase (filtfilt) filter, cutoff marked."""
+    floor = 1e-6  # -120 dB, keeps log10 finite at the zeros of the response
+    fig = go.Figure([
+        go.Scatter(x=freq_hz, y=20 * np.log10(np.maximum(gain_single, floor)), name="one pass", mode="lines"),
+        go.Scatter(x=freq_hz, y=20 * np.log10(np.maximum(gain_zero_phase, floor)), name="zero phase (filtfilt)",
+                   mode="lines"),
+    ])
+    fig.add_vline(x=cutoff_hz, line_dash="dash", line_color="#7f7f7f",
+                  annotation_text=f"cutoff {cutoff_hz:g} Hz", annotation_position="top right")
+    base_layout(fig, x_title="frequency [Hz]", y_title="gain [dB]", height=300, title="FIR frequency response")
+    fig.update_yaxes(range=[-100, 5])
+    fig.update_layout(hovermode="x")
+    return fig
+
+
+def raw_filtered_figure(time_s: np.ndarray, raw: np.ndarray, filtered: np.ndarray, axes: tuple[str, ...],
+                        unit: str, max_points: int = MAX_POINTS) -> go.Figure:
+    """Raw samples and their zero-phase low-pass, one row per axis (``raw``, ``filtered``: shape (n, k))."""
+    fig = make_subplots(rows=len(axes), cols=1, shared_xaxes=True, vertical_spacing=0.04)
+    for k, axis in enumerate(axes):
+        fig.add_trace(line(time_s, raw[:, k], f"{axis} raw", max_points=max_points, color="#aec7e8",
+                           legendgroup="raw"), row=k + 1, col=1)
+        fig.add_trace(line(time_s, filtered[:, k], f"{axis} filtered", max_points=max_points, color="#1f77b4",
+                           legendgroup="filtered"), row=k + 1, col=1)
+    base_layout(fig, y_title="", height=120 + 150 * len(axes), title="Raw vs filtered")
+    for k, axis in enumerate(axes):
+        fig.update_yaxes(title_text=f"{axis} [{unit}]", row=k + 1, col=1)
+    fig.update_xaxes(title_text="")
+    fig.update_xaxes(title_text=TIME_TITLE, row=len(axes), col=1)
+    return fig
+
+
+def allan_figure(curves: list[pd.DataFrame], readoffs: list, axes: tuple[str, ...], unit: str) -> go.Figure:
+    """Overlapping Allan deviation per axis (log-log) with the read-off figures drawn: the white-noise line
+    N / sqrt(tau) and the bias-instability floor 0.664 B at its cluster time.
+
+    Parameters
+    ----------
+    curves : list of pandas.DataFrame
+        Per axis: ``tau_s`` [s], ``adev`` [unit], ``adev_err`` [unit].
+    readoffs : list of calib.allan.AllanFigures
+        Per axis: ``white_density``, ``bias_instability``, ``bias_instability_tau_s``.
+    """
+    fig = go.Figure()
+    for k, (curve, figs, axis) in enumerate(zip(curves, readoffs, axes, strict=True)):
+        color = AXIS_COLORS[k % len(AXIS_COLORS)]
+        fig.add_trace(go.Scatter(x=curve["tau_s"], y=curve["adev"], name=axis, mode="lines+markers",
+                                 line={"color": color}, marker={"size": 4},
+                                 error_y={"type": "data", "array": curve["adev_err"], "visible": True,
+                                          "thickness": 0.8}))
+        if np.isfinite(figs.white_density):
+            tau = curve["tau_s"].to_numpy(float)
+            fig.add_trace(go.Scatter(x=tau, y=figs.white_density / np.sqrt(tau), mode="lines", showlegend=False,
+                                     line={"color": color, "dash": "dot", "width": 1}, name=f"{axis} N/sqrt(tau)"))
+        fig.add_trace(go.Scatter(x=[figs.bias_instability_tau_s], y=[0.664 * figs.bias_instability],
+                                 mode="markers", name=f"{axis} bias instability", showlegend=False,
+                                 marker={"color": color, "symbol": "star", "size": 12}))
+    base_layout(fig, x_title="cluster time tau [s]", y_title=f"Allan deviation [{unit}]", height=380,
+                title="Allan deviation (dotted: white noise N/sqrt(tau); star: bias-instability floor)")
+    fig.update_xaxes(type="log")
+    fig.update_yaxes(type="log")
+    fig.update_layout(hovermode="closest")
+    return fig
+
+
+def tau_curve_figure(log10_tau_grid, neg_log_likelihood, mean_nis, chosen_tau: float,
+                     nis_band: tuple[float, float]) -> go.Figure:
+    """The auto-tau evidence (eq 52): mean negative log-likelihood and mean NIS over tau, chosen tau marked."""
+    tau = 10.0 ** np.asarray(log10_tau_grid, dtype=float)
+    fig = make_subplots(specs=[[{"secondary_y": True}]])
+    fig.add_trace(go.Scatter(x=tau, y=neg_log_likelihood, name="neg. log-likelihood", mode="lines+markers"),
+                  secondary_y=False)
+    fig.add_trace(go.Scatter(x=tau, y=mean_nis, name="mean NIS", mode="lines+markers"), secondary_y=True)
+    if all(np.isfinite(nis_band)):
+        fig.add_hrect(y0=nis_band[0], y1=nis_band[1], fillcolor="rgba(44,160,44,0.15)", line_width=0,
+                      secondary_y=True)
+    fig.add_vline(x=chosen_tau, line_dash="dash", annotation_text=f"tau = {chosen_tau:.3g}")
+    base_layout(fig, x_title="tau [-]", y_title="mean neg. log-likelihood [-]", height=320,
+                title="Automatic tau (accelerometer y innovations)")
+    fig.update_yaxes(title_text="mean NIS [-]", secondary_y=True)
+    fig.update_xaxes(type="log")
     return fig

@@ -138,3 +138,35 @@ def runs_table(runs: pd.DataFrame, entries: Sequence) -> pd.DataFrame:
         "R": [s.get("noise", "") for s in settings],
         "created (UTC)": runs["created_utc"].to_numpy(dtype=object),
     })
+
+
+def flat_columns(table: pd.DataFrame) -> pd.DataFrame:
+    """``table`` with MultiIndex columns joined into single labels (``"Gyroscope (deg/s) p"``) for display."""
+    if not isinstance(table.columns, pd.MultiIndex):
+        return table
+    return table.set_axis([" ".join(str(part) for part in column) for column in table.columns], axis=1)
+
+
+def allan_table(per_axis: Sequence, axes: Sequence[str], unit: str) -> pd.DataFrame:
+    """Allan read-off figures of one IMU sensor, one row per axis.
+
+    Parameters
+    ----------
+    per_axis : sequence of calib.allan.AllanFigures
+        ``Calibration.allan[sensor]``.
+    axes : sequence of str
+        Axis labels.
+    unit : str
+        Unit U of the sensor's data (m/s^2, rad/s).
+
+    Returns
+    -------
+    pandas.DataFrame
+        Columns axis, white-noise density N [U/sqrt(Hz)], per-sample sigma N sqrt(f) [U], bias instability
+        B [U], its cluster time [s], whether the floor was reached, rate random walk K [U sqrt(Hz)/s].
+    """
+    return pd.DataFrame([{"axis": axis, f"N [{unit}/sqrt(Hz)]": figs.white_density,
+                          f"sigma per sample [{unit}]": figs.sigma_per_sample, f"B [{unit}]": figs.bias_instability,
+                          "B at tau [s]": figs.bias_instability_tau_s, "floor reached": figs.floor_reached,
+                          f"K [{unit} sqrt(Hz)/s]": figs.rate_random_walk}
+                         for axis, figs in zip(axes, per_axis, strict=True)])

@@ -83,3 +83,48 @@ def test_streams_table_and_phase_table():
 @pytest.mark.parametrize(("duration_s", "text"), [(65.25, "1:05.2"), (3725.0, "1:02:05.0")])
 def test_format_duration(duration_s, text):
     assert tables.format_duration(duration_s) == text
+
+
+def test_segment_figure_marks_segments_and_bounds_points():
+    series = _series()
+    norms = pd.DataFrame({"gyro_norm_rad_s": series.abs().to_numpy() / 100.0,
+                          "accel_norm_m_s2": 9.81 + series.to_numpy() / 100.0}, index=series.index)
+    segments = pd.DataFrame([("stationary", 100.0, 400.0, ""), ("steady", 900.0, 1500.0, "")],
+                            columns=["kind", "start_s", "end_s", "reason"])
+    fig = figures.segment_figure(norms, segments)
+    assert [trace.name for trace in fig.data] == ["|gyro|", "|specific force|"]
+    assert all(len(trace.x) <= figures.MAX_POINTS for trace in fig.data)
+    assert len(fig.layout.shapes) == 2 * 2 and fig.layout.dragmode == "select"  # a band per segment and row
+    assert fig.layout.yaxis.title.text == "|gyro| [rad/s]" and fig.layout.yaxis2.title.text.endswith("[m/s^2]")
+    assert fig.layout.xaxis2.title.text == figures.TIME_TITLE
+
+
+def test_frequency_response_and_raw_filtered_figures():
+    freq_hz = np.linspace(0.0, 125.0, 512)
+    gain = 1.0 / np.sqrt(1.0 + (freq_hz / 15.0) ** 8)
+    fig = figures.frequency_response_figure(freq_hz, gain, gain**2, 15.0)
+    assert [trace.name for trace in fig.data] == ["one pass", "zero phase (filtfilt)"]
+    assert _axis_titles(fig) == ["frequency [Hz]", "gain [dB]"] and np.all(np.isfinite(fig.data[1].y))
+
+    time_s = np.arange(100_000) / RATE_HZ
+    raw = np.random.default_rng(2).normal(size=(len(time_s), 3))
+    fig = figures.raw_filtered_figure(time_s, raw, raw * 0.1, ("x", "y", "z"), "rad/s")
+    assert len(fig.data) == 6 and all(len(trace.x) <= figures.MAX_POINTS for trace in fig.data)
+    assert [fig.layout[f"yaxis{k or ''}"].title.text for k in (0, 2, 3)] == ["x [rad/s]", "y [rad/s]", "z [rad/s]"]
+
+
+def test_allan_and_tau_figures():
+    from calib.allan import allan_deviation, allan_figures
+
+    white = np.random.default_rng(3).normal(0.0, 0.01, (20_000, 3))
+    curves = [allan_deviation(white[:, k], RATE_HZ) for k in range(3)]
+    frames = [pd.DataFrame({"tau_s": c.taus_s, "adev": c.adev, "adev_err": c.adev_err}) for c in curves]
+    fig = figures.allan_figure(frames, [allan_figures(c) for c in curves], ("x", "y", "z"), "rad/s")
+    assert [trace.name for trace in fig.data if trace.showlegend is not False] == ["x", "y", "z"]
+    assert fig.layout.xaxis.type == "log" and fig.layout.yaxis.type == "log"
+    assert _axis_titles(fig) == ["cluster time tau [s]", "Allan deviation [rad/s]"]
+
+    fig = figures.tau_curve_figure([-1.0, 0.0, 1.0, 2.0], [1.2, 1.0, 1.1, 1.4], [4.0, 1.0, 0.3, 0.1], 1.0,
+                                   (0.8, 1.2))
+    assert [trace.name for trace in fig.data] == ["neg. log-likelihood", "mean NIS"]
+    assert fig.layout.xaxis.title.text == "tau [-]" and fig.layout.yaxis2.title.text == "mean NIS [-]"

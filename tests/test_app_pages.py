@@ -81,7 +81,8 @@ def test_home_upload_rejects_a_bad_file_and_stores_a_good_one(open_page, workspa
 
 def test_overview_shows_metadata_streams_and_reacts_to_options(open_page):
     at = open_page("views/overview.py")
-    assert [metric.label for metric in at.metric] == ["Vehicle", "Firmware", "Data duration", "Start (UTC)"]
+    assert [metric.label for metric in at.metric] == ["Data duration", "Streams", "Missing sensors",
+                                                "Reader warnings"]
     streams = at.dataframe[0].value
     assert "imu" in set(streams["stream"]) and {"topic", "rate_hz", "gaps"} <= set(streams.columns)
     assert at.info or at.warning  # missing streams are explained
@@ -89,3 +90,29 @@ def test_overview_shows_metadata_streams_and_reacts_to_options(open_page):
     at.toggle(key="overview_phases").set_value(False).run()
     assert not at.exception
     assert len(_chart_traces(at, 1)) < with_phases
+
+
+def _frames(at: AppTest, predicate) -> list:
+    """Values of the page's data frames that satisfy ``predicate`` (data frames carry no key in AppTest)."""
+    return [frame.value for frame in at.dataframe if predicate(frame.value)]
+
+
+def test_calibration_tables_tau_and_window(open_page):
+    at = open_page("views/calibration.py")
+    [table4] = _frames(at, lambda v: "Noise (eq 50 eta)" in v.index)
+    assert any("Gyroscope (deg/s)" in column for column in table4.columns)
+    [noise] = _frames(at, lambda v: "segment_end_s" in v.columns)
+    assert {"accelerometer", "gyroscope"} <= set(noise["sensor"])
+    is_r = lambda v: list(v.index) == ["x", "y", "z"] and list(v.columns) == ["x", "y", "z"]  # noqa: E731
+    r_before = _frames(at, is_r)[0].to_numpy(dtype=float)  # accelerometer first
+    at.select_slider(key="calib_tau").set_value(10.0).run()
+    assert not at.exception
+    r_after = _frames(at, is_r)[0].to_numpy(dtype=float)
+    assert r_after[1, 1] == pytest.approx(10.0 * r_before[1, 1]) and r_after[0, 0] == pytest.approx(r_before[0, 0])
+
+    at.radio(key="calib_mode").set_value("window").run()
+    low, high = at.slider(key="calib_window").value
+    at.slider(key="calib_window").set_value((low, low + 0.6 * (high - low))).run()
+    assert not at.exception
+    [noise] = _frames(at, lambda v: "segment_end_s" in v.columns)
+    assert noise["segment_end_s"].max() == pytest.approx(low + 0.6 * (high - low), abs=0.05)

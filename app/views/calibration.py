@@ -1,8 +1,121 @@
-"""calibration page (being wired to the library)."""
+"""Calibration: pick the segment, set the FIR filters, and read the noise figures (paper Table 4, eq 50), the R
+matrices (eq 51) with tau (eq 52), the Allan deviations, and download CALIB.json / the PX4 .params file."""
 
+import numpy as np
+import pandas as pd
 import streamlit as st
 
-from app import session
+from app import adapters, figures, session, tables
+from calib.calibration import SENSORS
+from calib.fir import frequency_response
+from calib.tables import noise_table, r_tables, table4
+
+TAU_CHOICES = (0.1, 0.2, 0.5, 1.0, 2.0, 5.0, 10.0, 20.0, 50.0, 100.0)
+WINDOW_KEY = "calib_window"
 
 log = session.require_log()
-st.title(f"calibration: {log.meta.source}")
+root, sha256 = session.root(), session.selected_sha256()
+st.title(f"Calibration: {log.meta.source}")
+
+# ------------------------------------------------------------------ segment
+st.subheader("Segment")
+candidates = adapters.candidate_segments(root, sha256)
+automatic = st.radio("Segment", ["automatic", "window"], horizontal=True, key="calib_mode",
+                     format_func={"automatic": "automatic (longest stationary, else steady, per sensor)",
+                                  "window": "pick a window"}.get, label_visibility="collapsed") == "automatic"
+if automatic and candidates.empty:
+    st.warning("No stationary or steady segment was found automatically: pick a window.")
+    automatic = False
+span = (float(log.meta.start_time_s), float(log.meta.end_time_s))
+
+
+def take_box_selection() -> None:
+    """Chart callback: a box dragged on the segment chart becomes the window."""
+    boxes = st.session_state["calib_segment_chart"].selection.get("box", [])
+    if boxes:
+        low, high = sorted(float(x) for x in boxes[0]["x"][:2])
+        st.session_state[WINDOW_KEY] = (max(low, span[0]), min(high, span[1]))
+        st.session_state["calib_mode"] = "window"
+
+
+window = None
+if not automatic:
+    default = tuple(candidates[["start_s", "end_s"]].iloc[0]) if len(candidates) else span
+    window = st.slider("Window [s] (log clock)", span[0], span[1], value=default, step=0.1, key=WINDOW_KEY,
+                       format="%.1f")
+shaded = candidates if window is None else pd.DataFrame([("user", *window, "window")], columns=candidates.columns)
+st.plotly_chart(figures.segment_figure(adapters.imu_norms(root, sha256), shaded), key="calib_segment_chart",
+                on_select=take_box_selection, selection_mode="box")
+if automatic:
+    st.dataframe(candidates, hide_index=True, column_config={
+        "start_s": st.column_config.NumberColumn("start [s]", format="%.1f"),
+        "end_s": st.column_config.NumberColumn("end [s]", format="%.1f")})
+
+# ------------------------------------------------------------------ filter settings and calibration
+st.subheader("FIR filters")
+available = [name for name, channels in SENSORS.items() if log.has(channels.stream)]
+requests = st.data_editor(
+    pd.DataFrame({"sensor": available, "cutoff_hz": np.nan, "numtaps": 0}), hide_index=True, key="calib_fir",
+    disabled=["sensor"], column_config={
+        "cutoff_hz": st.column_config.NumberColumn("cutoff [Hz] (empty: default)", min_value=0.01),
+        "numtaps": st.column_config.NumberColumn("taps (0: default, odd)", min_value=0, step=2)})
+fir_rows = tuple((row.sensor, float(row.cutoff_hz), int(row.numtaps or 0)) for row in requests.itertuples())
+noise = st.radio("R from", ["sigma", "eta"], horizontal=True, key="calib_noise",
+                 format_func={"sigma": "sigma (residual std, default)", "eta": "eta (eq 50, as the paper)"}.get)
+with session.input_errors():
+    base = adapters.calibration(root, sha256, window, fir_rows, noise)
+for warning in base.warnings:
+    st.warning(warning)
+
+# ------------------------------------------------------------------ results
+tab_noise, tab_filter, tab_r, tab_allan = st.tabs(["Noise and bias (Table 4)", "Filter and overlays",
+                                                  "R matrices and tau", "Allan deviation"])
+with tab_noise:
+    st.dataframe(tables.flat_columns(table4(base)), key="calib_table4")
+    st.caption("Paper Table 4 layout: eq 50 noise eta and bias beta, the residual sigma (per sample at the "
+               "stream's rate), its robust variant, and the physically referenced bias on a stationary segment.")
+    st.dataframe(noise_table(base).reset_index(), hide_index=True, key="calib_all_sensors")
+
+with tab_filter:
+    sensor = st.selectbox("Sensor", list(base.sensors), key="calib_sensor")
+    cal = base.sensors[sensor]
+    response = frequency_response(cal.fir)
+    st.plotly_chart(figures.frequency_response_figure(response.freq_hz, response.gain_single,
+                                                      response.gain_zero_phase, cal.fir.cutoff_hz))
+    time_s, raw, filtered = adapters.raw_and_filtered(root, sha256, sensor, (cal.segment.start_s, cal.segment.end_s),
+                                                      cal.fir.fs_hz, cal.fir.cutoff_hz, cal.fir.numtaps)
+    st.plotly_chart(figures.raw_filtered_figure(time_s, raw, filtered, cal.axes, cal.unit))
+    for warning in cal.warnings:
+        st.info(f"{sensor}: {warning}")
+
+with tab_r:
+    tau = st.select_slider("tau (eq 52: multiplies the accelerometer's body-y variance)", TAU_CHOICES, value=1.0,
+                           key="calib_tau")
+    current = adapters.with_user_tau(base, tau) if tau != base.tau.tau else base
+    columns = st.columns(3)
+    for k, (name, matrix) in enumerate(r_tables(current).items()):
+        unit = current.sensors[name].unit if name in current.sensors else ""
+        columns[k % 3].write(f"**{name}** [{unit}^2]")
+        columns[k % 3].dataframe(matrix.style.format("{:.3e}"), key=f"calib_r_{name}")
+    st.caption("Automatic tau (likelihood or NIS over filter replays) needs the estimators; see the Estimators "
+               "page.")
+
+with tab_allan:
+    if not base.allan:
+        st.info("No stationary segment: the Allan deviation needs the vehicle at rest (pick a stationary window).")
+    for name, curves in adapters.allan(root, sha256, window, fir_rows, noise).items():
+        axes, unit = base.sensors[name].axes, base.sensors[name].unit
+        st.plotly_chart(figures.allan_figure(curves, list(base.allan[name]), axes, unit), key=f"allan_{name}")
+        st.dataframe(tables.allan_table(base.allan[name], axes, unit), hide_index=True, key=f"allan_table_{name}")
+
+# ------------------------------------------------------------------ export
+st.subheader("Export")
+calib_json, params_text = adapters.calibration_files(current)
+left, middle, right = st.columns(3)
+left.download_button("Download CALIB.json", calib_json, file_name="CALIB.json", mime="application/json")
+middle.download_button("Download PX4 .params", params_text, file_name="solarnav_ekf2.params", mime="text/plain")
+if right.button("Save in the workspace", key="calib_save"):
+    fir_json = [[name, None if np.isnan(cutoff) else cutoff, taps] for name, cutoff, taps in fir_rows]
+    settings = {"window_s": window, "fir": fir_json, "noise": noise, "tau": tau}
+    calib_id = session.workspace().add_calibration(sha256, settings, calib_json)
+    st.success(f"Saved calibration {calib_id}.")

@@ -7,7 +7,7 @@ import streamlit as st
 from app import adapters, session, tables
 from app.workspace import sanitize_name
 
-st.title("solarnav: offline state estimation for small UAV flight logs")
+st.title("solarnav")
 st.write("Upload a PX4 ULog (and optionally the sun-device log), check its streams, calibrate the sensors' noise "
          "from the flight itself, then re-run three EKFs and compare them with the autopilot and the truth.")
 

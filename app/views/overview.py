@@ -9,16 +9,20 @@ log = session.require_log()
 meta = log.meta
 st.title(f"Overview: {meta.source}")
 
-columns = st.columns(4)
-columns[0].metric("Vehicle", tables.vehicle_name(meta.vehicle_type))
-columns[1].metric("Firmware", meta.px4_version or "unknown", help=f"hardware: {meta.hardware or 'unknown'}")
-columns[2].metric("Data duration", tables.format_duration(meta.duration_s),
-                  help=f"first to last IMU sample: {meta.start_time_s:.3f} .. {meta.end_time_s:.3f} s (log clock)")
-start_utc = log.utc(meta.start_time_s)[0].strftime("%Y-%m-%d %H:%M:%S") if meta.utc_offset_s is not None else None
-columns[3].metric("Start (UTC)", start_utc or "no GPS time")
-
 missing = tables.missing_streams(log)
 sensors_missing = missing[missing["stream"].isin(tables.SENSOR_STREAMS)]
+columns = st.columns(4)
+columns[0].metric("Data duration", tables.format_duration(meta.duration_s),
+                  help=f"first to last IMU sample: {meta.start_time_s:.3f} .. {meta.end_time_s:.3f} s (log clock)")
+columns[1].metric("Streams", len(meta.streams))
+columns[2].metric("Missing sensors", len(sensors_missing))
+columns[3].metric("Reader warnings", len(meta.warnings))
+start_utc = (f"{log.utc(meta.start_time_s)[0]:%Y-%m-%d %H:%M:%S} UTC" if meta.utc_offset_s is not None
+             else "no GPS time")
+st.markdown(f"**Vehicle** {tables.vehicle_name(meta.vehicle_type)} &nbsp;·&nbsp; **Firmware** "
+            f"{meta.px4_version or 'unknown'} on {meta.hardware or 'unknown hardware'} &nbsp;·&nbsp; **Start** "
+            f"{start_utc} &nbsp;·&nbsp; **SHA-256** `{meta.sha256[:16]}`")
+
 if len(sensors_missing):
     st.warning("Missing sensors:\n" + "\n".join(f"- **{row.stream}**: no {row.consequence}"
                                                  for row in sensors_missing.itertuples()))
