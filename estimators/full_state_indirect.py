@@ -57,7 +57,11 @@ from estimators.events import (
     ZERO_VELOCITY,
     ReplayInputs,
 )
-from estimators.full_state_direct import (
+from estimators.full_state_direct import (  # shared with the direct filter: same limits, same event handling
+    EIG_FLOOR,
+    GPS_OUTAGE_RESET_S,
+    MIN_VARIANCE,
+    PD_CHECK_EVERY,
     StateSpec,
     _tangent_basis,
     component_range,
@@ -92,14 +96,9 @@ C_GPS_RESETS = 3
 C_REPAIRS = 4
 C_UPDATES = 5
 C_OUTPUTS = 6
-N_COUNTERS = 7
+C_FLUSHES = 7
+N_COUNTERS = 8
 
-#: GPS back after an outage longer than this -> position reset (math note 2.3) [s] (as the direct filter).
-GPS_OUTAGE_RESET_S = 10.0
-#: Variance floor of every error state (keeps P positive definite).
-MIN_VARIANCE = 1e-12
-#: Smallest eigenvalue kept by a covariance repair.
-EIG_FLOOR = 1e-12
 #: Cap of the attitude-error variances: 180 deg standard deviation (math note 7.2).
 MAX_ATTITUDE_VAR_RAD2 = math.pi ** 2
 #: PX4 parameters of the GPS antenna position in the body frame [m].
@@ -206,7 +205,8 @@ def measurement(x, kind, comp, values, field, lever_b, gyro, H):
 def _flush_covariance(P, x_cov, acc, params, sel, rw_psd, min_var, max_var, F_full, Q_full, F, Q, work, active,
                       counters):
     """Propagate P over the accumulated interval ``acc[0]`` with the mean inputs ``acc[1:7] / acc[0]``, from the
-    nominal ``x_cov`` at its start; then repair."""
+    nominal ``x_cov`` at its start; variance limits every time, the positive-definiteness repair every
+    ``PD_CHECK_EVERY`` propagations (as the direct filter)."""
     dt = acc[0]
     mean_gyro = acc[1:4] / dt
     mean_accel = acc[4:7] / dt
@@ -220,8 +220,12 @@ def _flush_covariance(P, x_cov, acc, params, sel, rw_psd, min_var, max_var, F_fu
             F[a, b] = F_full[sel[a], sel[b]]
             Q[a, b] = Q_full[sel[a], sel[b]]
     ekf_core.propagate_covariance(P, F, Q, work, active)
-    if ekf_core.repair_covariance(P, min_var, max_var, work, EIG_FLOOR):
-        counters[C_REPAIRS] += 1
+    counters[C_FLUSHES] += 1
+    if counters[C_FLUSHES] % PD_CHECK_EVERY == 0:
+        if ekf_core.repair_covariance(P, min_var, max_var, work, EIG_FLOOR):
+            counters[C_REPAIRS] += 1
+    else:
+        ekf_core.limit_variances(P, min_var, max_var)
     for i in range(7):
         acc[i] = 0.0
 
@@ -514,11 +518,12 @@ def run(flight_log: FlightLog, inputs: ReplayInputs, config: EstimatorConfig, *,
                             k["rw_psd"], k["min_var"], k["max_var"], out_f, out_sd, diag_f, diag_i, counters)
     kernel_s = time.perf_counter() - kernel_started
     return _assemble(inputs, k, out_f, out_sd, diag_f, diag_i, counters, x_final, inject=inject,
-                     timings={"kernel": kernel_s, "total": time.perf_counter() - started})
+                     timings={"kernel": kernel_s, "total": time.perf_counter() - started},
+                     config_accel_bias=config.accel_bias_states)
 
 
 def _assemble(inputs: ReplayInputs, k: dict, out_f, out_sd, diag_f, diag_i, counters, x_final, *, inject,
-              timings) -> EstimatorRun:
+              timings, config_accel_bias) -> EstimatorRun:
     plan = inputs.plan
     count = int(counters[C_OUTPUTS])
     o, sd = out_f[:count], out_sd[:count]
@@ -549,6 +554,9 @@ def _assemble(inputs: ReplayInputs, k: dict, out_f, out_sd, diag_f, diag_i, coun
                           x[:, m.X_W:m.X_W + 2] if wind else None, inputs.origin, std=std,
                           navigation=plan.has_gps, wind=wind)
     diagnostics = diagnostics_frame(diag_f, diag_i, int(counters[C_DIAG]))
+    degradations = list(plan.degradations)
+    if m.E_BA not in sel and config_accel_bias:
+        degradations.append("no GPS: accelerometer bias not estimated (no absolute velocity reference)")
     warnings = list(inputs.warnings)
     if counters[C_RESETS]:
         warnings.append(f"filter diverged and was reset {counters[C_RESETS]} times")
@@ -570,7 +578,7 @@ def _assemble(inputs: ReplayInputs, k: dict, out_f, out_sd, diag_f, diag_i, coun
                    "alt_m": inputs.origin.alt_m, "source": inputs.origin.source},
     }
     report = EstimatorReport(estimator=NAME, used=tuple(plan.used), skipped=dict(plan.skipped),
-                             degradations=plan.degradations, resets=int(counters[C_RESETS]),
+                             degradations=tuple(degradations), resets=int(counters[C_RESETS]),
                              gps_resets=int(counters[C_GPS_RESETS]), covariance_repairs=int(counters[C_REPAIRS]),
                              n_imu_samples=len(inputs.imu.time_s), n_updates=int(counters[C_UPDATES]),
                              timings_s=timings, warnings=tuple(warnings), details=details)
