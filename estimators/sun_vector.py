@@ -456,7 +456,8 @@ def _solve_epoch(current, normals, sky_factor, noise_a, model_error_rel, kappa, 
        if lit or dark in the final direction, are the faulty ones.
 
     ``flags``, ``vec``, ``mat``: scratch space (rows ``_AVAILABLE``.., ``_S``.., ``_NORMAL``..).
-    Returns (status, k [A], sky [A], sky 1-sigma [A], residual sum of squares [A^2], fitted cells, sigma [rad]).
+    Returns (status, k [A], sky [A], sky 1-sigma per unit current sigma [-], residual sum of squares [A^2],
+    fitted cells, sigma [rad]).
     """
     nan = np.nan
     n_cells = current.shape[0]
@@ -561,7 +562,7 @@ def _solve_epoch(current, normals, sky_factor, noise_a, model_error_rel, kappa, 
             for q in range(3):
                 cov_along += s[p] * m_inv[p, q] * s[q]
         sigma_rad = sigma * np.sqrt(max(m_inv[0, 0] + m_inv[1, 1] + m_inv[2, 2] - cov_along, 0.0) / 2.0) / k
-        return STATUS_OK, k, solution[3], sigma * np.sqrt(m_inv[3, 3]), rss, n_used, sigma_rad
+        return STATUS_OK, k, solution[3], np.sqrt(m_inv[3, 3]), rss, n_used, sigma_rad
     faulty[:] = False
     return STATUS_INCONSISTENT, nan, nan, nan, nan, 0, nan
 
@@ -569,19 +570,19 @@ def _solve_epoch(current, normals, sky_factor, noise_a, model_error_rel, kappa, 
 @njit(cache=True)
 def _adaptive_kernel(currents, normals, sky_factor, noise_a, model_error_rel, kappa, cos_lit_min, cos_dark_max,
                      cond_max, n_initial, max_iterations, sky_prior_a, sky_prior_sigma_a, s_out, k_out, sky_out,
-                     sky_sd_out, rss_out, n_fit_out, sigma_out, cells_used, faulty, status):
+                     sky_gain_out, rss_out, n_fit_out, sigma_out, cells_used, faulty, status):
     flags = np.zeros((8, currents.shape[1]), dtype=np.bool_)
     vec = np.zeros((5, 4))
     mat = np.zeros((4, 4, 4))
     for e in range(currents.shape[0]):
-        code, k, sky, sky_sd, rss, n_fit, sigma = _solve_epoch(
+        code, k, sky, sky_gain, rss, n_fit, sigma = _solve_epoch(
             currents[e], normals, sky_factor[e], noise_a, model_error_rel, kappa, cos_lit_min, cos_dark_max,
             cond_max, n_initial, max_iterations, sky_prior_a, sky_prior_sigma_a, s_out[e], cells_used[e],
             faulty[e], flags, vec, mat)
         status[e] = code
         k_out[e] = k
         sky_out[e] = sky
-        sky_sd_out[e] = sky_sd
+        sky_gain_out[e] = sky_gain
         rss_out[e] = rss
         n_fit_out[e] = n_fit
         sigma_out[e] = sigma
@@ -671,8 +672,9 @@ def solve_sun_adaptive(currents_a, device: SunDevice, noise_a: float, up_device=
     """Adaptive least-squares unit sun vector with lit-cell selection, sky removal and fault exclusion.
 
     Algorithm in the module docstring (note 8.4); the per-epoch logic is a numba kernel run twice. Pass 1 takes
-    the sky current from the dark cells or the top cell only. Its median over the solved epochs (spread: the
-    scaled MAD, at least ``noise_a``) then enters pass 2 as a prior on ``I_sky``: with the isotropic-sky model
+    the sky current from the dark cells or the top cell only. Its weighted median over the solved epochs (with
+    the spread the estimates' errors do not explain, :func:`_sky_prior`) then enters pass 2 as a prior on
+    ``I_sky``: with the isotropic-sky model
     the six side cells cannot separate ``I_sky`` from the vertical component of ``k s``, so without the prior a
     faulty top cell could be neither detected nor solved around whenever all side cells are lit.
 
@@ -704,7 +706,8 @@ def solve_sun_adaptive(currents_a, device: SunDevice, noise_a: float, up_device=
     first = _run_adaptive_kernel(currents, device, sky_factor, noise, config, np.nan, np.inf)
     solved = first["status"] == STATUS_OK
     if solved.any():
-        sky_prior, sky_prior_sigma = _sky_prior(first["sky"][solved], first["sky_sd"][solved], noise)
+        sigma_a = np.hypot(noise, config.model_error_rel * np.median(first["k"][solved]))
+        sky_prior, sky_prior_sigma = _sky_prior(first["sky"][solved], sigma_a * first["sky_gain"][solved])
         final = _run_adaptive_kernel(currents, device, sky_factor, noise, config, sky_prior, sky_prior_sigma)
     else:
         final = first
@@ -728,28 +731,33 @@ def solve_sun_adaptive(currents_a, device: SunDevice, noise_a: float, up_device=
                        k_min_a=k_min)
 
 
-def _sky_prior(sky_a, sky_sd_a, noise_a) -> tuple[float, float]:
+def _sky_prior(sky_a, sky_sd_a) -> tuple[float, float]:
     """Prior (value, 1-sigma) [A] on the sky current from pass-1 estimates ``sky_a`` with 1-sigma ``sky_sd_a``.
 
-    Value: median of the better-determined half of the estimates. Spread ``tau`` of the true sky current:
-    the root of ``median(|sky - value| / sqrt(sd^2 + tau^2)) = 0.6745`` (the median of a unit half-normal),
-    i.e. the scatter the estimates' own errors do not explain; floored at ``noise_a / 2``.
+    Value: median weighted by ``1 / sd^2`` (the ``sd`` come from the geometry and one common current sigma, so
+    the weights do not select on the estimates' own errors). Spread ``tau`` of the true sky current: the root of
+    ``median(|sky - value| / sqrt(sd^2 + tau^2)) = 0.6745`` (median of a unit half-normal), i.e. the scatter the
+    estimates' errors do not explain. Returned sigma: ``sqrt(tau^2 + se^2)`` with ``se`` the standard error of
+    the weighted median (1.2533 / sqrt(sum of weights)).
     """
-    good = sky_sd_a <= np.median(sky_sd_a)
-    sky, sd = sky_a[good], sky_sd_a[good]
-    value = float(np.median(sky))
-    deviation = np.abs(sky - value)
+    weight = 1.0 / sky_sd_a ** 2
+    order = np.argsort(sky_a)
+    cumulative = np.cumsum(weight[order])
+    value = float(sky_a[order][np.searchsorted(cumulative, 0.5 * cumulative[-1])])
+    standard_error = 1.2533 / np.sqrt(cumulative[-1])
+    deviation = np.abs(sky_a - value)
 
     def excess(tau):
-        return float(np.median(deviation / np.sqrt(sd ** 2 + tau ** 2))) - 0.6745
+        return float(np.median(deviation / np.sqrt(sky_sd_a ** 2 + tau ** 2))) - 0.6745
 
-    low, high = 0.0, max(float(np.max(deviation)), noise_a)
-    if excess(low) <= 0.0:
-        return value, noise_a / 2.0
-    for _ in range(40):
-        middle = 0.5 * (low + high)
-        low, high = (middle, high) if excess(middle) > 0.0 else (low, middle)
-    return value, max(high, noise_a / 2.0)
+    tau = 0.0
+    if excess(0.0) > 0.0:
+        low, high = 0.0, float(np.max(deviation))
+        for _ in range(50):
+            middle = 0.5 * (low + high)
+            low, high = (middle, high) if excess(middle) > 0.0 else (low, middle)
+        tau = high
+    return value, float(np.hypot(tau, standard_error))
 
 
 def _run_adaptive_kernel(currents, device, sky_factor, noise, config, sky_prior_a, sky_prior_sigma_a) -> dict:
@@ -757,7 +765,7 @@ def _run_adaptive_kernel(currents, device, sky_factor, noise, config, sky_prior_
     n_epochs = len(currents)
     out = {
         "s_device": np.full((n_epochs, 3), np.nan),
-        **{name: np.full(n_epochs, np.nan) for name in ("k", "sky", "sky_sd", "rss", "sigma_rad")},
+        **{name: np.full(n_epochs, np.nan) for name in ("k", "sky", "sky_gain", "rss", "sigma_rad")},
         "n_fit": np.zeros(n_epochs, dtype=np.int64),
         "cells_used": np.zeros((n_epochs, N_CELLS), dtype=bool),
         "faulty": np.zeros((n_epochs, N_CELLS), dtype=bool),
@@ -766,7 +774,7 @@ def _run_adaptive_kernel(currents, device, sky_factor, noise, config, sky_prior_
     _adaptive_kernel(currents, np.ascontiguousarray(device.normals_device), sky_factor, noise,
                      config.model_error_rel, config.kappa, np.cos(np.radians(config.max_incidence_deg)),
                      config.dark_cos_max, config.cond_max, config.n_initial, config.max_iterations,
-                     sky_prior_a, sky_prior_sigma_a, out["s_device"], out["k"], out["sky"], out["sky_sd"], out["rss"],
+                     sky_prior_a, sky_prior_sigma_a, out["s_device"], out["k"], out["sky"], out["sky_gain"], out["rss"],
                      out["n_fit"], out["sigma_rad"], out["cells_used"], out["faulty"], out["status"])
     return out
 
