@@ -14,6 +14,7 @@ import pytest
 from pyulog import ULog
 
 from app.cli import main
+from ingest.sun_log import load_sun_device, load_sun_log
 from ingest.ulog_reader import load_flight_log
 from sim.px4_export import output_paths, px4_topics, write_outputs
 from sim.scenarios import SCENARIOS
@@ -136,6 +137,15 @@ def test_sun_csv_and_side_files(short_run):
     assert errors["gps"]["position_error_rms_horizontal_m"] > 0 and errors["baro"]["noise_pa"] == 1.5
     assert [segment["leg"] for segment in side["segments_log_time_s"]] == ["still", "handlaunch", "changealtitude",
                                                                            "turn"]
+
+
+def test_sun_files_round_trip_through_ingest(short_run):
+    result, paths = short_run
+    sun = load_sun_log(paths["sun_csv"], time_offset_s=result.truth.utc_offset_s)
+    expected = result.log.streams["sun"]
+    np.testing.assert_allclose(sun.index.to_numpy(), expected.index.to_numpy(), atol=5e-4)  # 1 ms in the CSV
+    np.testing.assert_allclose(sun.to_numpy(), expected.to_numpy(), atol=5e-8)  # 0.1 uA in the CSV [A]
+    assert load_sun_device(paths["device_json"]) == result.scenario.sensors.device
 
 
 def test_same_seed_same_bytes_other_seed_other_bytes(short_run, tmp_path):
