@@ -6,9 +6,9 @@ Analytic Jacobians only; ``tests/test_three_stage.py`` checks each against centr
 
 Frames and units: NED earth frame, FRD body frame, ZYX Euler angles (roll phi, pitch theta, yaw psi) [rad], body
 rates (p, q, r) [rad/s], specific force [m/s^2] (``(0, 0, -g)`` level at rest), speeds [m/s], positions [m].
-The stage states are laid out in the tables :data:`STAGE1_STATES`, :data:`STAGE2_STATES`,
-:data:`STAGE3_FW_STATES` and :data:`STAGE3_MC_STATES`; :func:`initial_covariance` and :func:`process_noise_psd`
-build P0 and the continuous process-noise density from them.
+Each stage's state is laid out in a table of :class:`StateSpec` rows (built from the configuration in
+:mod:`estimators.three_stage`); :func:`initial_covariance` and :func:`process_noise_psd` build P0 and the continuous
+process-noise density from it.
 
 Stages
 ------
@@ -51,34 +51,6 @@ class StateSpec(NamedTuple):
     unit: str
     sigma0: float
     sigma_process: float
-
-
-#: Stage 1 (roll, pitch). Process noise covers the residual gyro bias drift after the stationary-segment removal.
-STAGE1_STATES = (
-    StateSpec("roll_rad", "rad", np.radians(10.0), np.radians(0.3)),
-    StateSpec("pitch_rad", "rad", np.radians(10.0), np.radians(0.3)),
-)
-#: Stage 2 (heading).
-STAGE2_STATES = (
-    StateSpec("yaw_rad", "rad", np.radians(30.0), np.radians(0.3)),
-)
-#: Stage 3, fixed-wing mode (math note 3.3). V_g and chi random walks stand for the unmodelled longitudinal
-#: acceleration and turn-rate errors of the coordinated-turn model.
-STAGE3_FW_STATES = (
-    StateSpec("pn_m", "m", 5.0, 0.3),
-    StateSpec("pe_m", "m", 5.0, 0.3),
-    StateSpec("vg_m_s", "m/s", 2.0, 0.5),
-    StateSpec("chi_rad", "rad", np.radians(20.0), np.radians(3.0)),
-    StateSpec("wind_n_m_s", "m/s", 3.0, 0.02),
-    StateSpec("wind_e_m_s", "m/s", 3.0, 0.02),
-)
-#: Stage 3, multicopter / no-airspeed mode (math note 3.4). Velocity process noise covers the accelerometer bias.
-STAGE3_MC_STATES = (
-    StateSpec("pn_m", "m", 5.0, 0.1),
-    StateSpec("pe_m", "m", 5.0, 0.1),
-    StateSpec("vn_m_s", "m/s", 1.0, 0.3),
-    StateSpec("ve_m_s", "m/s", 1.0, 0.3),
-)
 
 
 def initial_covariance(table: tuple[StateSpec, ...]) -> np.ndarray:
@@ -142,7 +114,10 @@ def body_vector_and_euler_jacobian(v_n, phi, theta, psi):
         Columns dh/dphi, dh/dtheta, dh/dpsi (math note 1.1 identity d(R^T a)/dTheta = [R^T a]x W).
     """
     r = rotation_nb(phi, theta, psi)
-    h = r.T @ v_n
+    h = np.zeros(3)
+    for i in range(3):
+        for j in range(3):
+            h[i] += r[j, i] * v_n[j]
     cph, sph = np.cos(phi), np.sin(phi)
     cth, sth = np.cos(theta), np.sin(theta)
     w = np.array([[1.0, 0.0, -sth], [0.0, cph, sph * cth], [0.0, -sph, cph * cth]])
@@ -181,9 +156,15 @@ def stage1_f(x, rates):
     ndarray, shape (2,)
         (phi_dot, theta_dot) [rad/s].
     """
-    sph, cph, tth = np.sin(x[0]), np.cos(x[0]), np.tan(x[1])
-    p, q, r = rates[0], rates[1], rates[2]
-    return np.array([p + (q * sph + r * cph) * tth, q * cph - r * sph])
+    phi_dot, theta_dot = stage1_rates(x[0], x[1], rates[0], rates[1], rates[2])
+    return np.array([phi_dot, theta_dot])
+
+
+@njit(cache=True)
+def stage1_rates(phi, theta, p, q, r):
+    """Scalar form of :func:`stage1_f`: (phi_dot, theta_dot) [rad/s] from (phi, theta) [rad] and (p, q, r)."""
+    sph, cph = np.sin(phi), np.cos(phi)
+    return p + (q * sph + r * cph) * np.tan(theta), q * cph - r * sph
 
 
 @njit(cache=True)
@@ -352,16 +333,28 @@ def stage3_fw_f(x, u, gravity_m_s2):
     ndarray, shape (6,)
         State derivative.
     """
-    vg, chi, wn, we = x[2], x[3], x[4], x[5]
-    va, q, r, phi, theta, psi = u[0], u[1], u[2], u[3], u[4], u[5]
-    inv_vg, _ = _inverse_speed(vg)
-    psi_dot = euler_yaw_rate(phi, theta, q, r)
+    psi_dot = euler_yaw_rate(u[3], u[4], u[1], u[2])
     out = np.zeros(6)
-    out[0] = vg * np.cos(chi)
-    out[1] = vg * np.sin(chi)
-    out[2] = va * psi_dot * (we * np.cos(psi) - wn * np.sin(psi)) * inv_vg
-    out[3] = gravity_m_s2 * np.tan(phi) * np.cos(chi - psi) * inv_vg
+    out[0], out[1], out[2], out[3] = stage3_fw_rates(x[2], x[3], x[4], x[5], u[0], psi_dot, u[5], u[3],
+                                                     gravity_m_s2)
     return out
+
+
+@njit(cache=True)
+def stage3_fw_rates(vg, chi, wn, we, va, psi_dot, psi, phi, gravity_m_s2):
+    """Scalar form of :func:`stage3_fw_f`: (p_n_dot, p_e_dot, V_g_dot, chi_dot) (the wind is constant).
+
+    Parameters
+    ----------
+    vg, chi, wn, we : float
+        Ground speed [m/s], course [rad], wind north/east [m/s].
+    va, psi_dot, psi, phi : float
+        Airspeed [m/s], heading rate [rad/s], heading [rad], roll [rad].
+    gravity_m_s2 : float
+    """
+    inv_vg, _ = _inverse_speed(vg)
+    return (vg * np.cos(chi), vg * np.sin(chi), va * psi_dot * (we * np.cos(psi) - wn * np.sin(psi)) * inv_vg,
+            gravity_m_s2 * np.tan(phi) * np.cos(chi - psi) * inv_vg)
 
 
 @njit(cache=True)
@@ -462,11 +455,14 @@ def stage3_fw_h_gps_velocity(x):
 
 @njit(cache=True)
 def ned_acceleration(phi, theta, psi, specific_force_b, gravity_m_s2):
-    """Kinematic NED acceleration a_n = R_nb f_b + g_n [m/s^2], shape (3,), and R_nb (3, 3)."""
+    """Kinematic NED acceleration a_n = R_nb f_b + g_n [m/s^2], shape (3,)."""
     r = rotation_nb(phi, theta, psi)
-    a = r @ specific_force_b
+    a = np.zeros(3)
+    for i in range(3):
+        for j in range(3):
+            a[i] += r[i, j] * specific_force_b[j]
     a[2] += gravity_m_s2
-    return a, r
+    return a
 
 
 @njit(cache=True)

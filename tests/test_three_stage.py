@@ -5,7 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from estimators import three_stage
 from estimators import three_stage_models as m
+from estimators.config import EstimatorConfig
 from ingest.frames import euler_to_matrix
 
 GRAVITY = 9.80665
@@ -239,14 +241,21 @@ def test_ned_acceleration_at_rest_is_zero(rng):
     for _ in range(N_RANDOM):
         phi, theta, psi = random_attitude(rng)
         f_b = euler_to_matrix(phi, theta, psi).T @ [0.0, 0.0, -GRAVITY]
-        a, _ = m.ned_acceleration(phi, theta, psi, f_b, GRAVITY)
+        a = m.ned_acceleration(phi, theta, psi, f_b, GRAVITY)
         np.testing.assert_allclose(a, 0.0, atol=1e-12)
 
 
 # ---------------------------------------------------------------- state tables
 
 
-@pytest.mark.parametrize("table", [m.STAGE1_STATES, m.STAGE2_STATES, m.STAGE3_FW_STATES, m.STAGE3_MC_STATES])
+def all_tables():
+    config = EstimatorConfig()
+    return [three_stage.stage1_states(config), three_stage.stage2_states(config, absolute_yaw=True),
+            three_stage.stage2_states(config, absolute_yaw=False), three_stage.stage3_fixed_wing_states(config),
+            three_stage.stage3_multicopter_states(config)]
+
+
+@pytest.mark.parametrize("table", all_tables())
 def test_state_tables_build_positive_definite_matrices(table):
     p0 = m.initial_covariance(table)
     qc = m.process_noise_psd(table)

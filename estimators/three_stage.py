@@ -1,0 +1,989 @@
+"""Three-stage series estimator (paper section 3.1 and Algorithm 1; math note section 3, degraded modes section 7).
+
+Three small EKFs in series, each feeding the next its estimate as an input (models in
+:mod:`estimators.three_stage_models`, the EKF algebra in :mod:`estimators.ekf_core`):
+
+1. **Roll and pitch** ``x1 = (phi, theta)`` [rad], propagated with the bias-corrected gyro (bias from the still
+   window at the start, math note 3.0; no bias states), updated with the accelerometer: three sequential scalar
+   updates, re-linearised after each (Algorithm 1), at ``accel_update_rate_hz`` (the paper's 50 Hz estimator rate)
+   with the specific force and the rates averaged over the update interval. Fixed-wing with airspeed: the steady
+   flight model with the centripetal term (eq 20/21 corrected); otherwise gravity only (``V_a = 0``) or, with
+   ``gps_acceleration``, ``h = C_bn (a_n - g_n)`` with the low-passed derivative of the GPS velocity (math note
+   7.1). R: the accelerometer density of the config at the update rate, eq 52's ``tau`` on the body-y entry, plus
+   ``d^2`` when the specific-force magnitude misses the model by ``d > manoeuvre_threshold_m_s2``.
+2. **Heading** ``x2 = psi`` [rad], propagated with ``psi_dot = (q s_ph + r c_ph) / c_th`` (eq 22 corrected),
+   updated with the magnetometer (unit vector against the unit World Magnetic Model field, eq 24/25 corrected) and/or
+   the photocell sun vector (tangent-plane form of math note 8.5), whichever the replay inputs carry
+   (``heading="mag"|"sun"|"mag+sun"`` of :func:`estimators.events.build_replay_inputs`). Cascade consistency: R is
+   inflated by the stage-1 covariance, ``R_eff = R + J P1 J^T`` with ``J = dh/d(phi, theta)``; the correlated
+   vector is whitened (Cholesky) before its scalar updates.
+3. **Navigation** at the GPS epochs (Algorithm 1, T31). Fixed-wing with airspeed: ``x3 = (p_n, p_e, V_g, chi,
+   w_n, w_e)`` (eq 26-33 corrected) driven by ``u = (V_a, q, r, phi, theta, psi)``; per GPS epoch the wind-triangle
+   pseudo-measurement (``R = J diag(sigma_Va^2, P_psi) J^T + sigma_w^2 I``, whitened, ungated), then GPS north,
+   east, then velocity (NED form, or ground speed and course with ``gps_velocity_mode="paper"``). It starts at the
+   first GPS epoch with a ground speed above V_min (the model is invalid on the ground / in the hand launch).
+   Otherwise (multicopter, or no airspeed): ``x3 = (p_n, p_e, v_n, v_e)`` driven by the NED acceleration from the
+   accelerometer and the stage-1/2 attitude (math note 3.4); no wind.
+   Height is not estimated: it is the low-passed barometer altitude (offset to GPS height removed by the replay
+   inputs), or the low-passed GPS height without a barometer (math note 7.4); the vertical speed is the low-passed
+   rate of that filter. The airspeed input is the low-passed true airspeed (math note 3.0).
+
+Filter quantities per stage (kernel arrays): ``x`` state, ``P`` covariance (prior before, posterior after each
+scalar update), innovation ``nu``, its variance ``S``, ``NIS = nu^2 / S``. Every scalar update is a diagnostics
+row; the sensors are the shared event kinds plus ``accel`` (stage 1) and ``wind`` (the pseudo-measurement). The
+innovations of whitened vector updates (magnetometer, sun, wind) are in whitened units (R = 1).
+
+``backend="python"`` runs the same kernel uncompiled (numba's ``py_func`` chain via ``NUMBA_DISABLE_JIT=1`` in a
+fresh process): the plain-NumPy reference of the twin test.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from typing import NamedTuple
+
+import numpy as np
+import pandas as pd
+from numba import njit
+from scipy.stats import chi2
+
+from estimators import ekf_core, events
+from estimators.config import EstimatorConfig
+from estimators.events import AIRSPEED, BARO, GPS_POS, GPS_VEL, MAG, OUTPUT, SUN, ReplayInputs
+from estimators.results import EstimatorReport, EstimatorRun, states_frame
+from estimators.sun_vector import sun_tangent_basis
+from estimators.three_stage_models import (
+    StateSpec,
+    euler_yaw_rate,
+    initial_covariance,
+    ned_acceleration,
+    process_noise_psd,
+    stage1_A,
+    stage1_C_airspeed,
+    stage1_G,
+    stage1_h_acceleration,
+    stage1_h_airspeed,
+    stage1_rates,
+    stage2_G,
+    stage2_h,
+    stage3_fw_A,
+    stage3_fw_G,
+    stage3_fw_h_gps_velocity,
+    stage3_fw_h_wind,
+    stage3_fw_rates,
+    stage3_fw_wind_input_jacobian,
+    stage3_mc_A,
+    stage3_mc_f,
+)
+from ingest.flightlog import FlightLog
+
+NAME = "three_stage"
+
+#: Diagnostics sensor codes beyond the shared event kinds: stage-1 accelerometer and the wind-triangle pseudo.
+ACCEL = events.OUTPUT + 1
+WIND = events.OUTPUT + 2
+SENSOR_NAMES = (*events.SENSOR_NAMES, "accel", "wind")
+COMPONENT_NAMES = (*events.COMPONENT_NAMES, ("x", "y", "z"), ("n", "e"))
+
+#: Event kinds the replay inputs may carry that this estimator does not use (fixed-wing sideslip and no-GPS
+#: zero-velocity pseudo-measurements of the full-state filters).
+UNUSED_SENSORS = ("sideslip", "zero_velocity")
+#: Columns of the kernel's output array (angles [rad], positions [m], speeds [m/s]; ``*_std`` 1-sigma).
+OUT_COLUMNS = ("time_s", "roll", "pitch", "yaw", "pn", "pe", "pd", "vn", "ve", "vd", "wn", "we",
+               "roll_std", "pitch_std", "yaw_std", "pn_std", "pe_std", "vn_std", "ve_std", "wn_std", "we_std")
+(O_TIME, O_ROLL, O_PITCH, O_YAW, O_PN, O_PE, O_PD, O_VN, O_VE, O_VD, O_WN, O_WE, O_ROLL_STD, O_PITCH_STD, O_YAW_STD,
+ O_PN_STD, O_PE_STD, O_VN_STD, O_VE_STD, O_WN_STD, O_WE_STD) = range(len(OUT_COLUMNS))
+
+# kernel counters (0 and 1 are ekf_core.record_update's row and dropped counts)
+C_DIAG = 0
+C_DIAG_DROPPED = 1
+C_RESETS = 2
+C_GPS_RESETS = 3
+C_REPAIRS = 4
+C_UPDATES = 5
+C_OUTPUTS = 6
+C_PITCH_GUARD = 7
+N_COUNTERS = 8
+
+#: Attitude updates are skipped beyond this pitch (Euler singularity, math note 7.6) [rad].
+PITCH_GUARD_RAD = math.radians(85.0)
+#: An airspeed or GPS value older than this is stale: no centripetal term, no wind pseudo, no GPS acceleration [s].
+STALE_AFTER_S = 1.0
+#: Variance limits of the covariance repair; angle standard deviations are capped at 180 deg (math note 7.2).
+MIN_VARIANCE = 1e-12
+EIG_FLOOR = 1e-12
+# process-noise densities of the model-error random walks (the gyro enters through G; see the state tables)
+ROLL_PITCH_RW_RAD_SQRT_S = math.radians(0.3)  # residual gyro bias / scale / cross-axis error
+YAW_RW_RAD_SQRT_S = math.radians(0.3)
+POSITION_RW_M_SQRT_S = 0.3  # unmodelled kinematics between GPS epochs
+GROUND_SPEED_RW_M_S_SQRT_S = 0.5  # unmodelled longitudinal acceleration (V_a changes)
+COURSE_RW_RAD_SQRT_S = math.radians(3.0)  # coordinated-turn model error (roll error, sideslip)
+VELOCITY_RW_M_S_SQRT_S = 0.3  # multicopter mode: accelerometer bias and vibration beyond the density
+
+
+@dataclass(frozen=True)
+class ThreeStageOptions:
+    """Settings of the three-stage estimator beyond the shared :class:`~estimators.config.EstimatorConfig`.
+
+    Attributes
+    ----------
+    accel_update_rate_hz : float
+        Rate of the stage-1 accelerometer updates [Hz]; the specific force is averaged over the interval (paper:
+        IMU and estimator at 50 Hz).
+    accel_tau : float
+        Eq 52 penalty factor on the body-y accelerometer variance [-] (1: none; ``calib.tau`` selects it).
+    accel_gate : float
+        Stage-1 gate in innovation standard deviations (math note 3.1: 3..5).
+    manoeuvre_threshold_m_s2 : float
+        ``| |f_m| - |h(x)| |`` above which the squared mismatch is added to the accelerometer variance [m/s^2]
+        (math note 3.1: 0.5..1).
+    gps_acceleration : bool
+        Without airspeed: stage 1 uses ``h = C_bn (a_n - g_n)`` with the GPS-derived acceleration instead of
+        gravity only (math note 7.1).
+    cascade_inflation : bool
+        Inflate the stage-2 R by the stage-1 covariance (math note 3.2).
+    airspeed_lpf_s, baro_lpf_s, vertical_speed_lpf_s, gps_acceleration_lpf_s : float
+        First-order low-pass time constants [s] of the airspeed input, the height, the vertical speed and the GPS
+        acceleration.
+    wind_pseudo_sigma_m_s : float
+        Model error of the wind triangle (sideslip, flight-path angle, vertical wind) [m/s], added to the variance
+        propagated from airspeed and heading.
+    """
+
+    accel_update_rate_hz: float = 50.0
+    accel_tau: float = 1.0
+    accel_gate: float = 5.0
+    manoeuvre_threshold_m_s2: float = 0.5
+    gps_acceleration: bool = False
+    cascade_inflation: bool = True
+    airspeed_lpf_s: float = 0.2
+    baro_lpf_s: float = 0.5
+    vertical_speed_lpf_s: float = 1.0
+    gps_acceleration_lpf_s: float = 0.5
+    wind_pseudo_sigma_m_s: float = 0.3
+
+    def __post_init__(self):
+        for name in ("accel_update_rate_hz", "accel_tau", "accel_gate", "airspeed_lpf_s", "baro_lpf_s",
+                     "vertical_speed_lpf_s", "gps_acceleration_lpf_s"):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+                raise ValueError(f"ThreeStageOptions.{name} must be a positive number, got {value!r}")
+        for name in ("manoeuvre_threshold_m_s2", "wind_pseudo_sigma_m_s"):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
+                raise ValueError(f"ThreeStageOptions.{name} must be a non-negative number, got {value!r}")
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# state tables (x0, P0 and the random-walk densities are built from them)
+
+
+def stage1_states(config: EstimatorConfig) -> tuple[StateSpec, ...]:
+    """Stage 1 (roll, pitch); initial sigma from ``config.initial.roll_pitch_deg``."""
+    sigma0 = math.radians(config.initial.roll_pitch_deg)
+    return (StateSpec("roll_rad", "rad", sigma0, ROLL_PITCH_RW_RAD_SQRT_S),
+            StateSpec("pitch_rad", "rad", sigma0, ROLL_PITCH_RW_RAD_SQRT_S))
+
+
+def stage2_states(config: EstimatorConfig, *, absolute_yaw: bool) -> tuple[StateSpec, ...]:
+    """Stage 2 (heading); initial sigma ``initial.yaw_deg`` with an absolute heading source, else unaided."""
+    sigma0 = math.radians(config.initial.yaw_deg if absolute_yaw else config.initial.yaw_unaided_deg)
+    return (StateSpec("yaw_rad", "rad", sigma0, YAW_RW_RAD_SQRT_S),)
+
+
+def stage3_fixed_wing_states(config: EstimatorConfig) -> tuple[StateSpec, ...]:
+    """Stage 3, fixed-wing mode (math note 3.3); wind walk from ``config.noise.wind_rw_m_s_sqrt_s``."""
+    ini = config.initial
+    return (StateSpec("pn_m", "m", ini.position_m, POSITION_RW_M_SQRT_S),
+            StateSpec("pe_m", "m", ini.position_m, POSITION_RW_M_SQRT_S),
+            StateSpec("vg_m_s", "m/s", ini.velocity_m_s, GROUND_SPEED_RW_M_S_SQRT_S),
+            StateSpec("chi_rad", "rad", math.radians(ini.yaw_deg), COURSE_RW_RAD_SQRT_S),
+            StateSpec("wind_n_m_s", "m/s", ini.wind_m_s, config.noise.wind_rw_m_s_sqrt_s),
+            StateSpec("wind_e_m_s", "m/s", ini.wind_m_s, config.noise.wind_rw_m_s_sqrt_s))
+
+
+def stage3_multicopter_states(config: EstimatorConfig) -> tuple[StateSpec, ...]:
+    """Stage 3, multicopter / no-airspeed mode (math note 3.4)."""
+    ini = config.initial
+    return (StateSpec("pn_m", "m", ini.position_m, POSITION_RW_M_SQRT_S),
+            StateSpec("pe_m", "m", ini.position_m, POSITION_RW_M_SQRT_S),
+            StateSpec("vn_m_s", "m/s", ini.velocity_m_s, VELOCITY_RW_M_S_SQRT_S),
+            StateSpec("ve_m_s", "m/s", ini.velocity_m_s, VELOCITY_RW_M_S_SQRT_S))
+
+
+class KernelParams(NamedTuple):
+    """Scalars and small arrays of one run, read by the compiled kernel (units in the names)."""
+
+    gravity_m_s2: float
+    gyro_bias_rad_s: np.ndarray  # (3,) removed from every gyro row
+    gyro_psd: np.ndarray  # (3,) gyro noise density squared per axis [rad^2/s]
+    accel_psd: float  # accelerometer noise density squared [m^2/s^3]
+    accel_var: np.ndarray  # (3,) stage-1 R per axis at the update rate [m^2/s^4], tau on y
+    accel_update_dt_s: float
+    accel_gate: float
+    manoeuvre_threshold_m_s2: float
+    airspeed_model: bool  # stage 1 steady-flight model with airspeed (fixed-wing with airspeed)
+    gps_acceleration: bool  # stage 1 acceleration form (without airspeed)
+    fixed_wing_nav: bool  # stage 3 fixed-wing mode
+    paper_gps_velocity: bool  # GPS velocity as ground speed and course
+    height_from_gps: bool  # no barometer: height from GPS
+    cascade_inflation: bool
+    qc1: np.ndarray  # (2, 2) random-walk densities [rad^2/s]
+    qc2: float
+    qc3: np.ndarray  # (n3, n3)
+    a3_multicopter: np.ndarray  # (4, 4) constant Jacobian of the multicopter navigation model
+    p1_0: np.ndarray
+    p2_0: np.ndarray
+    p3_0: np.ndarray
+    max_var1: np.ndarray
+    max_var2: np.ndarray
+    max_var3: np.ndarray
+    mag_field_ned: np.ndarray  # (3,) unit
+    mag_gate_d2: float  # chi-square threshold of the 3-component magnetometer vector
+    sun_gate_d2: float  # chi-square threshold of the 2-component sun vector
+    gps_pos_gate: float
+    gps_vel_gate: float
+    airspeed_var: float  # [m^2/s^2]
+    wind_pseudo_var: float  # [m^2/s^2]
+    airspeed_lpf_s: float
+    baro_lpf_s: float
+    vertical_speed_lpf_s: float
+    gps_acceleration_lpf_s: float
+    min_ground_speed_m_s: float
+    gps_reset_after_s: float
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# stage steps (numba)
+
+
+@njit(cache=True)
+def _rk4_stage1(x, rates, dt):
+    """Classical RK4 of eq 18 over ``dt`` with the rates held, in place (no allocation)."""
+    p, q, r = rates[0], rates[1], rates[2]
+    phi, theta = x[0], x[1]
+    a1, b1 = stage1_rates(phi, theta, p, q, r)
+    a2, b2 = stage1_rates(phi + 0.5 * dt * a1, theta + 0.5 * dt * b1, p, q, r)
+    a3, b3 = stage1_rates(phi + 0.5 * dt * a2, theta + 0.5 * dt * b2, p, q, r)
+    a4, b4 = stage1_rates(phi + dt * a3, theta + dt * b3, p, q, r)
+    x[0] = phi + dt / 6.0 * (a1 + 2.0 * a2 + 2.0 * a3 + a4)
+    x[1] = theta + dt / 6.0 * (b1 + 2.0 * b2 + 2.0 * b3 + b4)
+
+
+@njit(cache=True)
+def _rk4_stage3_fw(x, va, psi_dot, psi, phi, g, dt):
+    """Classical RK4 of the fixed-wing navigation model over ``dt`` with the inputs held, in place."""
+    vg, chi, wn, we = x[2], x[3], x[4], x[5]
+    k1 = stage3_fw_rates(vg, chi, wn, we, va, psi_dot, psi, phi, g)
+    k2 = stage3_fw_rates(vg + 0.5 * dt * k1[2], chi + 0.5 * dt * k1[3], wn, we, va, psi_dot, psi, phi, g)
+    k3 = stage3_fw_rates(vg + 0.5 * dt * k2[2], chi + 0.5 * dt * k2[3], wn, we, va, psi_dot, psi, phi, g)
+    k4 = stage3_fw_rates(vg + dt * k3[2], chi + dt * k3[3], wn, we, va, psi_dot, psi, phi, g)
+    x[0] += dt / 6.0 * (k1[0] + 2.0 * k2[0] + 2.0 * k3[0] + k4[0])
+    x[1] += dt / 6.0 * (k1[1] + 2.0 * k2[1] + 2.0 * k3[1] + k4[1])
+    x[2] += dt / 6.0 * (k1[2] + 2.0 * k2[2] + 2.0 * k3[2] + k4[2])
+    x[3] = ekf_core.wrap_pi(chi + dt / 6.0 * (k1[3] + 2.0 * k2[3] + 2.0 * k3[3] + k4[3]))
+
+
+@njit(cache=True)
+def _add_input_noise(G, variances, scale, Q):
+    """``Q += G diag(variances) G^T * scale`` (small matrices, explicit loops)."""
+    n, m = G.shape
+    for i in range(n):
+        for j in range(n):
+            s = 0.0
+            for c in range(m):
+                s += G[i, c] * variances[c] * G[j, c]
+            Q[i, j] += s * scale
+
+
+@njit(cache=True)
+def _sandwich(J, P):
+    """``J P J^T`` for small matrices, shape (m, m)."""
+    m, n = J.shape
+    out = np.zeros((m, m))
+    for i in range(m):
+        for j in range(m):
+            s = 0.0
+            for a in range(n):
+                for b in range(n):
+                    s += J[i, a] * P[a, b] * J[j, b]
+            out[i, j] = s
+    return out
+
+
+@njit(cache=True)
+def _cholesky_lower(M):
+    """Lower Cholesky factor of a small symmetric positive-definite matrix (NaN when it is not)."""
+    m = M.shape[0]
+    L = np.zeros((m, m))
+    for j in range(m):
+        d = M[j, j]
+        for k in range(j):
+            d -= L[j, k] * L[j, k]
+        if not d > 0.0:
+            L[:, :] = math.nan
+            return L
+        L[j, j] = math.sqrt(d)
+        for i in range(j + 1, m):
+            v = M[i, j]
+            for k in range(j):
+                v -= L[i, k] * L[j, k]
+            L[i, j] = v / L[j, j]
+    return L
+
+
+@njit(cache=True)
+def _forward_solve(L, B):
+    """``L^-1 B`` for lower-triangular ``L`` (m, m) and ``B`` (m, k)."""
+    m, k = B.shape
+    X = B.copy()
+    for i in range(m):
+        for j in range(i):
+            for c in range(k):
+                X[i, c] -= L[i, j] * X[j, c]
+        for c in range(k):
+            X[i, c] /= L[i, i]
+    return X
+
+
+@njit(cache=True)
+def _propagate(dt, rates, f_b, va, prm, x1, P1, x2, P2, x3, P3, stage3_on, F1, Q1, W1, A1, F3, Q3, W3, A3):
+    """All three stages over ``dt`` [s] with the inputs held; covariances with F from the pre-step estimate."""
+    phi, theta, psi = x1[0], x1[1], x2[0]
+    # stage 1: Q = G N_g^2 G^T dt + Qc dt
+    ekf_core.transition_matrix(stage1_A(x1, rates), dt, F1)
+    for i in range(2):
+        for j in range(2):
+            Q1[i, j] = prm.qc1[i, j] * dt
+    _add_input_noise(stage1_G(x1), prm.gyro_psd, dt, Q1)
+    _rk4_stage1(x1, rates, dt)
+    ekf_core.propagate_covariance(P1, F1, Q1, W1, A1)
+    # stage 2: A = 0 (eq 23), psi integrated exactly with the held inputs
+    x2[0] = ekf_core.wrap_pi(psi + euler_yaw_rate(phi, theta, rates[1], rates[2]) * dt)
+    _add_input_noise(stage2_G(phi, theta), prm.gyro_psd, dt, P2)
+    P2[0, 0] += prm.qc2 * dt
+    if not stage3_on:
+        return
+    if prm.fixed_wing_nav:
+        n3 = x3.shape[0]
+        for i in range(n3):
+            for j in range(n3):
+                Q3[i, j] = prm.qc3[i, j] * dt
+        u = np.array([va, rates[1], rates[2], phi, theta, psi])
+        ekf_core.transition_matrix(stage3_fw_A(x3, u, prm.gravity_m_s2), dt, F3)
+        # airspeed and heading as input noise, per-sample variances held over dt (math note 2.2 (ii), 3.3)
+        _add_input_noise(stage3_fw_G(x3, u, prm.gravity_m_s2), np.array([prm.airspeed_var, P2[0, 0]]), dt * dt,
+                         Q3)
+        _rk4_stage3_fw(x3, va, euler_yaw_rate(phi, theta, rates[1], rates[2]), psi, phi, prm.gravity_m_s2, dt)
+    else:
+        ekf_core.transition_matrix(prm.a3_multicopter, dt, F3)
+        # accelerometer density (rotation-invariant) plus the tilt error g * delta (math note 3.4)
+        velocity_var = prm.accel_psd * dt + prm.gravity_m_s2 ** 2 * max(P1[0, 0], P1[1, 1]) * dt * dt
+        for i in range(4):
+            for j in range(4):
+                Q3[i, j] = prm.qc3[i, j] * dt
+        Q3[2, 2] += velocity_var
+        Q3[3, 3] += velocity_var
+        # exact for the held acceleration
+        rate = stage3_mc_f(x3, ned_acceleration(phi, theta, psi, f_b, prm.gravity_m_s2))
+        for i in range(2):
+            x3[i] += (rate[i] + 0.5 * dt * rate[2 + i]) * dt
+            x3[2 + i] += rate[2 + i] * dt
+    ekf_core.propagate_covariance(P3, F3, Q3, W3, A3)
+
+
+@njit(cache=True)
+def _record(diag_f, diag_i, counters, t, sensor, component, nu, s_var, nis, accepted):
+    counters[C_UPDATES] += 1
+    ekf_core.record_update(diag_f, diag_i, counters, t, sensor, component, nu, s_var, nis, accepted)
+
+
+@njit(cache=True)
+def _stage1_update(t, f_mean, rates_mean, va, accel_n, prm, x1, P1, x2, dx, ph, diag_f, diag_i, counters):
+    """Three sequential scalar accelerometer updates, re-linearised after each (Algorithm 1, stage 1)."""
+    if prm.airspeed_model:
+        h = stage1_h_airspeed(x1, rates_mean, va, prm.gravity_m_s2)
+    else:
+        h, _ = stage1_h_acceleration(x1, x2[0], accel_n, prm.gravity_m_s2)
+    mismatch = abs(math.sqrt(f_mean[0] ** 2 + f_mean[1] ** 2 + f_mean[2] ** 2)
+                   - math.sqrt(h[0] ** 2 + h[1] ** 2 + h[2] ** 2))
+    extra_var = mismatch * mismatch if mismatch > prm.manoeuvre_threshold_m_s2 else 0.0
+    for axis in range(3):
+        if prm.airspeed_model:
+            h = stage1_h_airspeed(x1, rates_mean, va, prm.gravity_m_s2)
+            c = stage1_C_airspeed(x1, rates_mean, va, prm.gravity_m_s2)
+        else:
+            h, c = stage1_h_acceleration(x1, x2[0], accel_n, prm.gravity_m_s2)
+        nu = f_mean[axis] - h[axis]
+        accepted, s_var, nis = ekf_core.scalar_update(P1, c[axis].copy(), nu, prm.accel_var[axis] + extra_var,
+                                                      prm.accel_gate, dx, ph)
+        _record(diag_f, diag_i, counters, t, ACCEL, axis, nu, s_var, nis, accepted)
+        if accepted:
+            x1 += dx
+
+
+@njit(cache=True)
+def _whitened_update(t, sensor, x, P, nu, H, R, gate_d2, dx, ph, diag_f, diag_i, counters):
+    """A vector measurement with correlated noise R, gated as a whole, then whitened and fused component-wise.
+
+    Gate: the vector is rejected when ``nu^T S^-1 nu > gate_d2`` with ``S = H P H^T + R`` (a chi-square threshold
+    for ``m`` components). Fusion: with ``R = L L^T``, ``nu' = L^-1 nu``, ``H' = L^-1 H`` and ``R' = I``, one scalar
+    update per component; later components are corrected linearly, so the result equals the batch update.
+    """
+    m = nu.shape[0]
+    L = _cholesky_lower(R)
+    nu_col = _forward_solve(L, nu.reshape((m, 1)))
+    H_w = _forward_solve(L, H)
+    # whole-vector Mahalanobis distance in whitened coordinates: S' = H' P H'^T + I
+    s_w = _sandwich(H_w, P)
+    for i in range(m):
+        s_w[i, i] += 1.0
+    y = _forward_solve(_cholesky_lower(s_w), nu_col)
+    nu_w = nu_col[:, 0].copy()
+    d2 = 0.0
+    for i in range(m):
+        d2 += y[i, 0] * y[i, 0]
+    if not d2 <= gate_d2:
+        for i in range(m):
+            _record(diag_f, diag_i, counters, t, sensor, i, nu_w[i], s_w[i, i], nu_w[i] ** 2 / s_w[i, i], False)
+        return
+    for i in range(m):
+        accepted, s_var, nis = ekf_core.scalar_update(P, H_w[i].copy(), nu_w[i], 1.0, math.inf, dx, ph)
+        _record(diag_f, diag_i, counters, t, sensor, i, nu_w[i], s_var, nis, accepted)
+        if accepted:
+            x += dx
+            for j in range(i + 1, m):
+                for c in range(x.shape[0]):
+                    nu_w[j] -= H_w[j, c] * dx[c]
+
+
+@njit(cache=True)
+def _stage2_update(t, kind, values, variances, prm, x1, P1, x2, P2, dx, ph, diag_f, diag_i, counters):
+    """Heading update from a body-frame unit vector: magnetometer (3 components) or sun (2 tangent components)."""
+    phi, theta = x1[0], x1[1]
+    if kind == MAG:
+        z = values[:3].copy()
+        norm = math.sqrt(z @ z)
+        if not norm > 0.0:
+            return
+        z /= norm
+        ref = prm.mag_field_ned
+        gate_d2 = prm.mag_gate_d2
+    else:
+        z = values[:3].copy()
+        ref = values[3:6].copy()
+        gate_d2 = prm.sun_gate_d2
+    h, c, j_tilt = stage2_h(x2[0], phi, theta, ref)
+    if kind == MAG:
+        nu = z - h
+        H = c
+        J = j_tilt
+    else:
+        # 2-DOF tangent-plane form (math note 8.5): nu = T^T z, H = T^T C, R = sigma^2 I_2
+        basis = sun_tangent_basis(h)
+        nu = np.zeros(2)
+        H = np.zeros((2, 1))
+        J = np.zeros((2, 2))
+        for i in range(2):
+            for a in range(3):
+                nu[i] += basis[a, i] * z[a]
+                H[i, 0] += basis[a, i] * c[a, 0]
+                J[i, 0] += basis[a, i] * j_tilt[a, 0]
+                J[i, 1] += basis[a, i] * j_tilt[a, 1]
+    R = _sandwich(J, P1) if prm.cascade_inflation else np.zeros((nu.shape[0], nu.shape[0]))
+    for i in range(nu.shape[0]):
+        R[i, i] += variances[0]
+    _whitened_update(t, kind, x2, P2, nu, H, R, gate_d2, dx, ph, diag_f, diag_i, counters)
+    x2[0] = ekf_core.wrap_pi(x2[0])
+
+
+@njit(cache=True)
+def _stage3_fw_wind(t, va, vd_gps, prm, x2, P2, x3, P3, dx, ph, diag_f, diag_i, counters):
+    """Wind-triangle pseudo-measurement z = (0, 0) (eq 31-33 corrected), ungated."""
+    vah = math.sqrt(max(va * va - vd_gps * vd_gps, 0.0))
+    h, c = stage3_fw_h_wind(x3, vah, x2[0])
+    R = np.zeros((2, 2))
+    _add_input_noise(stage3_fw_wind_input_jacobian(vah, x2[0]), np.array([prm.airspeed_var, P2[0, 0]]), 1.0, R)
+    R[0, 0] += prm.wind_pseudo_var
+    R[1, 1] += prm.wind_pseudo_var
+    _whitened_update(t, WIND, x3, P3, -h, c, R, math.inf, dx, ph, diag_f, diag_i, counters)
+    x3[3] = ekf_core.wrap_pi(x3[3])
+
+
+@njit(cache=True)
+def _stage3_gps_velocity(t, values, variances, prm, x3, P3, H, dx, ph, diag_f, diag_i, counters):
+    """GPS horizontal velocity: NED components (linear in multicopter mode), or V_g and chi in paper mode."""
+    n = x3.shape[0]
+    if prm.fixed_wing_nav and prm.paper_gps_velocity:
+        speed = math.hypot(values[0], values[1])
+        if speed < prm.min_ground_speed_m_s:
+            return
+        course = math.atan2(values[1], values[0])
+        for comp in range(2):
+            H[:] = 0.0
+            H[2 + comp] = 1.0
+            if comp == 0:
+                nu = speed - x3[2]
+                r_var = 0.5 * (variances[0] + variances[1])
+            else:
+                nu = ekf_core.wrap_pi(course - x3[3])
+                r_var = 0.5 * (variances[0] + variances[1]) / (speed * speed)  # eq 9 corrected (T5)
+            accepted, s_var, nis = ekf_core.scalar_update(P3, H, nu, r_var, prm.gps_vel_gate, dx, ph)
+            _record(diag_f, diag_i, counters, t, GPS_VEL, 3 + comp, nu, s_var, nis, accepted)
+            if accepted:
+                x3 += dx
+                x3[3] = ekf_core.wrap_pi(x3[3])
+        return
+    for comp in range(2):
+        if prm.fixed_wing_nav:
+            h, c = stage3_fw_h_gps_velocity(x3)
+            nu = values[comp] - h[comp]
+            for i in range(n):
+                H[i] = c[comp, i]
+        else:
+            nu = values[comp] - x3[2 + comp]
+            H[:] = 0.0
+            H[2 + comp] = 1.0
+        accepted, s_var, nis = ekf_core.scalar_update(P3, H, nu, variances[comp], prm.gps_vel_gate, dx, ph)
+        _record(diag_f, diag_i, counters, t, GPS_VEL, comp, nu, s_var, nis, accepted)
+        if accepted:
+            x3 += dx
+            if prm.fixed_wing_nav:
+                x3[3] = ekf_core.wrap_pi(x3[3])
+
+
+@njit(cache=True)
+def _stage3_init_velocity(values, variances, prm, x3, P3):
+    """Velocity states from a GPS velocity (start of stage 3, or reset with the position)."""
+    for i in range(2, 4):
+        for j in range(x3.shape[0]):
+            P3[i, j] = 0.0
+            P3[j, i] = 0.0
+    if prm.fixed_wing_nav:
+        speed = math.hypot(values[0], values[1])
+        x3[2] = speed
+        x3[3] = math.atan2(values[1], values[0])
+        P3[2, 2] = variances[0]
+        P3[3, 3] = variances[0] / max(speed * speed, prm.min_ground_speed_m_s ** 2)
+    else:
+        x3[2] = values[0]
+        x3[3] = values[1]
+        P3[2, 2] = variances[0]
+        P3[3, 3] = variances[1]
+
+
+@njit(cache=True)
+def _lowpass(value, sample, dt, tau):
+    """One step of a first-order low-pass with time constant ``tau`` over ``dt`` (exact for a held sample)."""
+    return value + (1.0 - math.exp(-dt / tau)) * (sample - value)
+
+
+@njit(cache=True)
+def _output_row(t, x1, P1, x2, P2, x3, P3, stage3_on, fixed_wing_nav, height, vertical_speed, row):
+    row[:] = math.nan
+    row[O_TIME] = t
+    row[O_ROLL] = x1[0]
+    row[O_PITCH] = x1[1]
+    row[O_YAW] = x2[0]
+    row[O_ROLL_STD] = math.sqrt(P1[0, 0])
+    row[O_PITCH_STD] = math.sqrt(P1[1, 1])
+    row[O_YAW_STD] = math.sqrt(P2[0, 0])
+    row[O_PD] = -height
+    row[O_VD] = -vertical_speed
+    if not stage3_on:
+        return
+    row[O_PN] = x3[0]
+    row[O_PE] = x3[1]
+    row[O_PN_STD] = math.sqrt(P3[0, 0])
+    row[O_PE_STD] = math.sqrt(P3[1, 1])
+    if fixed_wing_nav:
+        c, s, vg = math.cos(x3[3]), math.sin(x3[3]), x3[2]
+        row[O_VN] = vg * c
+        row[O_VE] = vg * s
+        # first-order propagation of the (V_g, chi) covariance to (v_n, v_e)
+        cov = _sandwich(np.array([[c, -vg * s], [s, vg * c]]), P3[2:4, 2:4])
+        row[O_VN_STD] = math.sqrt(max(cov[0, 0], 0.0))
+        row[O_VE_STD] = math.sqrt(max(cov[1, 1], 0.0))
+        row[O_WN] = x3[4]
+        row[O_WE] = x3[5]
+        row[O_WN_STD] = math.sqrt(P3[4, 4])
+        row[O_WE_STD] = math.sqrt(P3[5, 5])
+    else:
+        row[O_VN] = x3[2]
+        row[O_VE] = x3[3]
+        row[O_VN_STD] = math.sqrt(P3[2, 2])
+        row[O_VE_STD] = math.sqrt(P3[3, 3])
+
+
+@njit(cache=True)
+def _check_health(x, P, x_safe, P0, counters):
+    """Divergence reset (non-finite state or covariance -> last healthy state, initial covariance)."""
+    if ekf_core.is_healthy(x, P):
+        x_safe[:] = x
+    else:
+        ekf_core.reset_filter(x, P, x_safe, P0)
+        counters[C_RESETS] += 1
+
+
+@njit(cache=True)
+def _repair(P, max_var, work, counters):
+    """Covariance limits and positive definiteness after measurement updates (:func:`ekf_core.repair_covariance`)."""
+    if ekf_core.repair_covariance(P, np.full(P.shape[0], MIN_VARIANCE), max_var, work, EIG_FLOOR):
+        counters[C_REPAIRS] += 1
+
+
+@njit(cache=True)
+def run_kernel(imu_t, imu_gyro, imu_accel, ev_t, ev_kind, ev_imu, ev_val, ev_var, prm, x1, P1, x2, P2, x3, P3,
+               out, diag_f, diag_i, counters):
+    """The three stages over a whole log (one compiled loop; see the module docstring).
+
+    Parameters
+    ----------
+    imu_t, imu_gyro, imu_accel : ndarrays (N,), (N, 3), (N, 3)
+        IMU rows (:class:`estimators.events.ImuSamples`): row k holds over ``(imu_t[k-1], imu_t[k]]``.
+    ev_t, ev_kind, ev_imu, ev_val, ev_var : ndarrays
+        Events (:class:`estimators.events.MeasurementEvents`).
+    prm : KernelParams
+    x1, P1, x2, P2 : ndarrays (2,), (2, 2), (1,), (1, 1)
+        Stage 1 and 2 state and covariance, initial on entry, final on return (in place).
+    x3, P3 : ndarrays (n3,), (n3, n3)
+        Stage 3 state and covariance (n3 = 6 fixed-wing, 4 multicopter mode); initialised at the first GPS epoch.
+    out : ndarray (K, len(OUT_COLUMNS))
+        One row per OUTPUT event.
+    diag_f, diag_i : ndarrays
+        Diagnostics recorder arrays (:mod:`estimators.ekf_core`).
+    counters : int64 (N_COUNTERS,)
+    """
+    n3 = x3.shape[0]
+    F1, Q1, W1, W2 = np.empty((2, 2)), np.empty((2, 2)), np.empty((2, 2)), np.empty((1, 1))
+    F3, Q3, W3 = np.empty((n3, n3)), np.empty((n3, n3)), np.empty((n3, n3))
+    A1 = np.empty(2, dtype=np.bool_)
+    A3 = np.empty(n3, dtype=np.bool_)
+    dx1, ph1 = np.empty(2), np.empty(2)
+    dx2, ph2 = np.empty(1), np.empty(1)
+    dx3, ph3, H3 = np.empty(n3), np.empty(n3), np.empty(n3)
+    x1_safe, x2_safe, x3_safe = x1.copy(), x2.copy(), x3.copy()
+    row = np.empty(out.shape[1])
+    stage3_on = False
+    # stage-1 averaging over the update interval: sum of f dt, omega dt, and dt
+    f_sum, w_sum, sum_dt = np.zeros(3), np.zeros(3), 0.0
+    next_accel_t = imu_t[0]
+    # low-passed inputs and their sample times
+    va, va_t = 0.0, -math.inf
+    height, vertical_speed, height_t = math.nan, math.nan, -math.inf
+    gps_vel, gps_vel_t = np.zeros(3), -math.inf
+    gps_acc = np.zeros(3)
+    gps_pos, gps_pos_var = np.zeros(2), np.zeros(2)
+    gps_pos_t, gps_accept_t = -math.inf, -math.inf
+    gps_reset_epoch = -math.inf
+    n_out = 0
+    t = imu_t[0]
+    ie = 0
+    n_ev = ev_t.shape[0]
+    for k in range(imu_t.shape[0]):
+        rates = imu_gyro[k] - prm.gyro_bias_rad_s
+        f_b = imu_accel[k]
+        while True:
+            at_event = ie < n_ev and ev_imu[ie] <= k
+            t_next = ev_t[ie] if at_event else imu_t[k]
+            if t_next > t:
+                dt = t_next - t
+                va_in = va if t - va_t < STALE_AFTER_S else 0.0
+                _propagate(dt, rates, f_b, va_in, prm, x1, P1, x2, P2, x3, P3, stage3_on, F1, Q1, W1, A1, F3, Q3,
+                           W3, A3)
+                f_sum += f_b * dt
+                w_sum += rates * dt
+                sum_dt += dt
+                t = t_next
+            if not at_event:
+                break
+            kind = ev_kind[ie]
+            values = ev_val[ie]
+            variances = ev_var[ie]
+            if kind == OUTPUT:
+                _output_row(t, x1, P1, x2, P2, x3, P3, stage3_on, prm.fixed_wing_nav, height, vertical_speed, row)
+                ekf_core.record_output(out, n_out, row)
+                n_out += 1
+            elif kind == AIRSPEED:
+                va = values[0] if t - va_t > STALE_AFTER_S else _lowpass(va, values[0], t - va_t,
+                                                                          prm.airspeed_lpf_s)
+                va_t = t
+            elif kind == BARO or (kind == GPS_POS and prm.height_from_gps):
+                sample = values[0] if kind == BARO else -values[2]
+                if math.isnan(height):
+                    height, vertical_speed = sample, 0.0
+                else:
+                    rate = (sample - height) / prm.baro_lpf_s  # rate of the first-order filter
+                    height = _lowpass(height, sample, t - height_t, prm.baro_lpf_s)
+                    vertical_speed = _lowpass(vertical_speed, rate, t - height_t, prm.vertical_speed_lpf_s)
+                height_t = t
+            if kind in (MAG, SUN):
+                if abs(x1[1]) > PITCH_GUARD_RAD:
+                    counters[C_PITCH_GUARD] += 1
+                else:
+                    _stage2_update(t, kind, values, variances, prm, x1, P1, x2, P2, dx2, ph2, diag_f, diag_i,
+                                   counters)
+                    _repair(P2, prm.max_var2, W2, counters)
+            elif kind == GPS_POS:
+                gps_pos_t = t
+                gps_pos[:] = values[:2]
+                gps_pos_var[:] = variances[:2]
+                if stage3_on and t - gps_accept_t > prm.gps_reset_after_s:
+                    # (re)acquisition: position to GPS, variances to R, cross-covariances zeroed (math note 2.3)
+                    for i in range(2):
+                        x3[i] = values[i]
+                        for j in range(n3):
+                            P3[i, j] = 0.0
+                            P3[j, i] = 0.0
+                        P3[i, i] = variances[i]
+                    counters[C_GPS_RESETS] += 1
+                    gps_accept_t = t
+                    gps_reset_epoch = t
+                elif stage3_on:
+                    if prm.fixed_wing_nav and t - va_t < STALE_AFTER_S:
+                        _stage3_fw_wind(t, va, gps_vel[2], prm, x2, P2, x3, P3, dx3, ph3, diag_f, diag_i, counters)
+                    for i in range(2):
+                        H3[:] = 0.0
+                        H3[i] = 1.0
+                        nu = values[i] - x3[i]
+                        accepted, s_var, nis = ekf_core.scalar_update(P3, H3, nu, variances[i], prm.gps_pos_gate,
+                                                                      dx3, ph3)
+                        _record(diag_f, diag_i, counters, t, GPS_POS, i, nu, s_var, nis, accepted)
+                        if accepted:
+                            x3 += dx3
+                            gps_accept_t = t
+                    if prm.fixed_wing_nav:
+                        x3[3] = ekf_core.wrap_pi(x3[3])
+                    _repair(P3, prm.max_var3, W3, counters)
+            elif kind == GPS_VEL:
+                dt_gps = t - gps_vel_t
+                if 0.0 < dt_gps < STALE_AFTER_S:
+                    gps_acc = _lowpass(gps_acc, (values[:3] - gps_vel) / dt_gps, dt_gps, prm.gps_acceleration_lpf_s)
+                else:
+                    gps_acc[:] = 0.0
+                gps_vel[:] = values[:3]
+                gps_vel_t = t
+                if not stage3_on:
+                    fast = math.hypot(values[0], values[1]) > prm.min_ground_speed_m_s
+                    if gps_pos_t == t and (fast or not prm.fixed_wing_nav):
+                        # start of stage 3 at this GPS epoch: position (from its GPS_POS event) and velocity
+                        x3[:] = 0.0
+                        P3[:, :] = prm.p3_0
+                        for i in range(2):
+                            x3[i] = gps_pos[i]
+                            P3[i, i] = max(P3[i, i], gps_pos_var[i])
+                        _stage3_init_velocity(values, variances, prm, x3, P3)
+                        x3_safe[:] = x3
+                        stage3_on = True
+                        gps_accept_t = t
+                elif gps_reset_epoch == t:
+                    _stage3_init_velocity(values, variances, prm, x3, P3)
+                else:
+                    _stage3_gps_velocity(t, values, variances, prm, x3, P3, H3, dx3, ph3, diag_f, diag_i, counters)
+                    _repair(P3, prm.max_var3, W3, counters)
+            ie += 1
+        # stage 1 at the accelerometer update rate, with the inputs averaged over the interval
+        if t >= next_accel_t and sum_dt > 0.0:
+            if abs(x1[1]) > PITCH_GUARD_RAD:
+                counters[C_PITCH_GUARD] += 1
+            else:
+                va_in = va if t - va_t < STALE_AFTER_S else 0.0
+                use_gps_acc = prm.gps_acceleration and t - gps_vel_t < STALE_AFTER_S
+                accel_n = gps_acc if use_gps_acc else np.zeros(3)
+                _stage1_update(t, f_sum / sum_dt, w_sum / sum_dt, va_in, accel_n, prm, x1, P1, x2, dx1, ph1, diag_f,
+                               diag_i, counters)
+                _repair(P1, prm.max_var1, W1, counters)
+            f_sum[:] = 0.0
+            w_sum[:] = 0.0
+            sum_dt = 0.0
+            next_accel_t = max(next_accel_t + prm.accel_update_dt_s, t + 0.5 * prm.accel_update_dt_s)
+        _check_health(x1, P1, x1_safe, prm.p1_0, counters)
+        _check_health(x2, P2, x2_safe, prm.p2_0, counters)
+        if stage3_on:
+            _check_health(x3, P3, x3_safe, prm.p3_0, counters)
+    counters[C_OUTPUTS] = n_out
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# orchestration
+
+
+@dataclass(frozen=True)
+class KernelSetup:
+    """Initial states, covariances and parameters of one run (what :func:`run_kernel` receives)."""
+
+    tables: dict[str, tuple[StateSpec, ...]]
+    x1: np.ndarray
+    P1: np.ndarray
+    x2: np.ndarray
+    P2: np.ndarray
+    x3: np.ndarray
+    P3: np.ndarray
+    params: KernelParams
+    modes: dict[str, str] = field(default_factory=dict)
+
+
+def kernel_setup(inputs: ReplayInputs, config: EstimatorConfig, options: ThreeStageOptions) -> KernelSetup:
+    """State tables, initial values and kernel parameters of one run (modes from the sensor plan, math note 7)."""
+    plan, align, noise = inputs.plan, inputs.alignment, config.noise
+    fixed_wing_nav = plan.fixed_wing and plan.has_airspeed
+    absolute_yaw = plan.has_mag or plan.has_sun or align.yaw_source != "none"
+    tables = {"stage1": stage1_states(config), "stage2": stage2_states(config, absolute_yaw=absolute_yaw),
+              "stage3": stage3_fixed_wing_states(config) if fixed_wing_nav else stage3_multicopter_states(config)}
+    n3 = len(tables["stage3"])
+    accel_var = np.full(3, noise.accel_noise_m_s2_sqrt_hz ** 2 * options.accel_update_rate_hz)
+    accel_var[1] *= options.accel_tau
+    angle_cap = np.pi ** 2
+    max_var3 = np.full(n3, 1e12)
+    if fixed_wing_nav:
+        max_var3[3] = angle_cap
+    gates = config.gates
+    params = KernelParams(
+        gravity_m_s2=inputs.gravity_m_s2, gyro_bias_rad_s=np.asarray(align.gyro_bias_rad_s, dtype=float),
+        gyro_psd=np.full(3, noise.gyro_noise_rad_s_sqrt_hz ** 2), accel_psd=noise.accel_noise_m_s2_sqrt_hz ** 2,
+        accel_var=accel_var, accel_update_dt_s=1.0 / options.accel_update_rate_hz, accel_gate=options.accel_gate,
+        manoeuvre_threshold_m_s2=options.manoeuvre_threshold_m_s2,
+        airspeed_model=plan.fixed_wing and plan.has_airspeed,
+        gps_acceleration=options.gps_acceleration and plan.has_gps and not plan.has_airspeed,
+        fixed_wing_nav=fixed_wing_nav, paper_gps_velocity=config.gps_velocity_mode == "paper",
+        height_from_gps=plan.has_gps and not plan.has_baro, cascade_inflation=options.cascade_inflation,
+        qc1=process_noise_psd(tables["stage1"]), qc2=float(process_noise_psd(tables["stage2"])[0, 0]),
+        qc3=process_noise_psd(tables["stage3"]), a3_multicopter=stage3_mc_A(),
+        p1_0=initial_covariance(tables["stage1"]), p2_0=initial_covariance(tables["stage2"]),
+        p3_0=initial_covariance(tables["stage3"]),
+        max_var1=np.full(2, angle_cap), max_var2=np.full(1, angle_cap), max_var3=max_var3,
+        mag_field_ned=np.asarray(inputs.mag_field_ned, dtype=float), mag_gate_d2=vector_gate(gates.mag, 3),
+        sun_gate_d2=vector_gate(gates.sun, 2),
+        gps_pos_gate=gates.gps_pos, gps_vel_gate=gates.gps_vel, airspeed_var=noise.airspeed_sigma_m_s ** 2,
+        wind_pseudo_var=options.wind_pseudo_sigma_m_s ** 2, airspeed_lpf_s=options.airspeed_lpf_s,
+        baro_lpf_s=options.baro_lpf_s, vertical_speed_lpf_s=options.vertical_speed_lpf_s,
+        gps_acceleration_lpf_s=options.gps_acceleration_lpf_s,
+        min_ground_speed_m_s=config.timing.min_ground_speed_m_s, gps_reset_after_s=config.timing.gps_reset_after_s)
+    modes = {"stage1": ("airspeed (centripetal)" if params.airspeed_model
+                        else "gps_acceleration" if params.gps_acceleration else "gravity_only"),
+             "stage2": "+".join(s for s, used in (("mag", plan.has_mag), ("sun", plan.has_sun)) if used)
+             or "dead_reckoned",
+             "stage3": ("fixed_wing" if fixed_wing_nav else "multicopter") if plan.has_gps else "none",
+             "height": "baro" if plan.has_baro else "gps" if plan.has_gps else "none"}
+    return KernelSetup(tables=tables, x1=np.array([align.roll_rad, align.pitch_rad]), P1=params.p1_0.copy(),
+                       x2=np.array([align.yaw_rad]), P2=params.p2_0.copy(), x3=np.zeros(n3),
+                       P3=params.p3_0.copy(), params=params, modes=modes)
+
+
+def vector_gate(gate_sigma: float, n_components: int) -> float:
+    """Chi-square threshold on ``nu^T S^-1 nu`` of an ``n_components`` vector with the same false-rejection
+    probability as the scalar gate ``|nu| / sqrt(S) > gate_sigma`` (math note 2.3); inf stays inf."""
+    if not math.isfinite(gate_sigma):
+        return math.inf
+    return float(chi2.isf(chi2.sf(gate_sigma ** 2, 1), n_components))
+
+
+def diagnostics_capacity(ev: events.MeasurementEvents, imu_duration_s: float, options: ThreeStageOptions) -> int:
+    """Upper bound of the number of scalar updates of a run."""
+    per_kind = np.zeros(len(events.SENSOR_NAMES), dtype=np.int64)
+    per_kind[GPS_POS] = 4  # wind pseudo (2) + north, east
+    per_kind[GPS_VEL] = 2
+    per_kind[MAG] = 3
+    per_kind[SUN] = 2
+    n_accel = 3 * (int(imu_duration_s * options.accel_update_rate_hz) + 2)
+    return int(per_kind[ev.kind].sum()) + n_accel
+
+
+def diagnostics_frame(diag_f: np.ndarray, diag_i: np.ndarray, count: int) -> pd.DataFrame:
+    """The diagnostics table (as :func:`estimators.results.diagnostics_frame`, with the ``accel`` and ``wind``
+    sensors of this estimator)."""
+    diag_f, diag_i = diag_f[:count], diag_i[:count]
+    width = max(len(c) for c in COMPONENT_NAMES)
+    table = np.array([tuple(c) + ("",) * (width - len(c)) for c in COMPONENT_NAMES], dtype=object)
+    return pd.DataFrame({
+        "time_s": diag_f[:, 0],
+        "sensor": pd.Categorical(np.asarray(SENSOR_NAMES, dtype=object)[diag_i[:, 0]], categories=SENSOR_NAMES),
+        "component": pd.Categorical(table[diag_i[:, 0], diag_i[:, 1]]),
+        "innovation": diag_f[:, 1],
+        "innovation_var": diag_f[:, 2],
+        "nis": diag_f[:, 3],
+        "accepted": diag_i[:, 2].astype(bool),
+    })
+
+
+def run(flight_log: FlightLog, inputs: ReplayInputs, config: EstimatorConfig, *,
+        options: ThreeStageOptions | None = None) -> EstimatorRun:
+    """Run the three-stage estimator on prepared inputs (the registry entry of :mod:`estimators.api`).
+
+    Parameters
+    ----------
+    flight_log : FlightLog
+        The log (unused beyond ``inputs``; part of the common estimator signature).
+    inputs : ReplayInputs
+        From :func:`estimators.events.build_replay_inputs` (heading sources, output epochs, alignment).
+    config : EstimatorConfig
+        Shared noise, gates, initial sigmas and timing.
+    options : ThreeStageOptions, optional
+        Settings of this estimator (defaults when None).
+
+    Returns
+    -------
+    EstimatorRun
+        States at the output epochs (NaN position/velocity before stage 3 starts and without GPS; wind only in
+        fixed-wing mode), one diagnostics row per scalar update, and the report (modes, resets, timings).
+    """
+    del flight_log
+    options = ThreeStageOptions() if options is None else options
+    started = time.perf_counter()
+    setup = kernel_setup(inputs, config, options)
+    ev, imu = inputs.events, inputs.imu
+    out = np.full((ev.count(OUTPUT), len(OUT_COLUMNS)), np.nan)
+    capacity = diagnostics_capacity(ev, float(imu.time_s[-1] - imu.time_s[0]), options)
+    diag_f = np.zeros((capacity, len(ekf_core.DIAG_FLOAT_COLUMNS)))
+    diag_i = np.zeros((capacity, len(ekf_core.DIAG_INT_COLUMNS)), dtype=np.int64)
+    counters = np.zeros(N_COUNTERS, dtype=np.int64)
+    x1, P1, x2, P2 = setup.x1.copy(), setup.P1.copy(), setup.x2.copy(), setup.P2.copy()
+    x3, P3 = setup.x3.copy(), setup.P3.copy()
+    kernel_started = time.perf_counter()
+    run_kernel(imu.time_s, imu.gyro_rad_s, imu.accel_m_s2, ev.time_s, ev.kind, ev.imu_index, ev.values,
+               ev.variances, setup.params, x1, P1, x2, P2, x3, P3, out, diag_f, diag_i, counters)
+    kernel_s = time.perf_counter() - kernel_started
+    o = out[:counters[C_OUTPUTS]]
+    plan = inputs.plan
+    deg = np.degrees
+    std = {"roll_deg_std": deg(o[:, O_ROLL_STD]), "pitch_deg_std": deg(o[:, O_PITCH_STD]),
+           "yaw_deg_std": deg(o[:, O_YAW_STD]), "pos_n_m_std": o[:, O_PN_STD], "pos_e_m_std": o[:, O_PE_STD],
+           "vn_m_s_std": o[:, O_VN_STD], "ve_m_s_std": o[:, O_VE_STD], "wind_n_m_s_std": o[:, O_WN_STD],
+           "wind_e_m_s_std": o[:, O_WE_STD]}
+    states = states_frame(o[:, O_TIME], o[:, O_ROLL], o[:, O_PITCH], o[:, O_YAW], o[:, O_PN:O_PD + 1],
+                          o[:, O_VN:O_VD + 1], o[:, O_WN:O_WE + 1], inputs.origin, std=std,
+                          navigation=plan.has_gps, wind=setup.params.fixed_wing_nav)
+    warnings = list(inputs.warnings)
+    if counters[C_RESETS]:
+        warnings.append(f"a stage diverged and was reset {counters[C_RESETS]} times")
+    if counters[C_PITCH_GUARD]:
+        warnings.append(f"{counters[C_PITCH_GUARD]} attitude updates skipped at |pitch| > 85 deg")
+    if counters[C_DIAG_DROPPED]:
+        warnings.append(f"{counters[C_DIAG_DROPPED]} diagnostics rows dropped")
+    navigating = np.isfinite(o[:, O_PN])
+    details = {
+        "modes": setup.modes,
+        "states": {stage: [s.name for s in table] for stage, table in setup.tables.items()},
+        "final_state": {"stage1": x1.tolist(), "stage2": x2.tolist(), "stage3": x3.tolist()},
+        "gyro_bias_rad_s": setup.params.gyro_bias_rad_s.tolist(),
+        "alignment": {"tilt_source": inputs.alignment.tilt_source, "yaw_source": inputs.alignment.yaw_source,
+                      "still_window_s": inputs.alignment.still_window_s},
+        "stage3_start_s": float(o[navigating, O_TIME][0]) if navigating.any() else None,
+        "gps_delay_s": inputs.gps_delay_s,
+        "baro_offset_m": inputs.baro_offset_m,
+        "mag_field_source": inputs.mag_field_source,
+        "accel_update_rate_hz": options.accel_update_rate_hz,
+        "accel_tau": options.accel_tau,
+    }
+    unused = {name: "not part of the three-stage estimator" for name in UNUSED_SENSORS if name in plan.used}
+    report = EstimatorReport(estimator=NAME, used=tuple(s for s in plan.used if s not in unused),
+                             skipped={**plan.skipped, **unused},
+                             degradations=plan.degradations, resets=int(counters[C_RESETS]),
+                             gps_resets=int(counters[C_GPS_RESETS]), covariance_repairs=int(counters[C_REPAIRS]),
+                             n_imu_samples=len(imu.time_s), n_updates=int(counters[C_UPDATES]),
+                             timings_s={"kernel": kernel_s, "total": time.perf_counter() - started},
+                             warnings=tuple(warnings), details=details)
+    return EstimatorRun(states=states, diagnostics=diagnostics_frame(diag_f, diag_i, int(counters[C_DIAG])),
+                        report=report)
