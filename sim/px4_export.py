@@ -210,7 +210,7 @@ def write_outputs(result: SimResult, directory: str | os.PathLike) -> dict[str, 
     paths["ulog"].parent.mkdir(parents=True, exist_ok=True)
     log = result.log
     topics = px4_topics(log, origin=result.truth.origin, airspeed_air_temp_c=result.airspeed_air_temp_c)
-    info = {"sys_name": "PX4", "ver_hw": HARDWARE, "ver_data_format": 2}
+    info = {"sys_name": HARDWARE, "ver_hw": HARDWARE, "ver_data_format": 2}
     _write_atomic(paths["ulog"], ulog_bytes(topics, info=info, parameters=log.meta.parameters))
     _write_atomic(paths["sun_csv"], sun_csv_text(log.streams["sun"], log.meta.utc_offset_s).encode())
     device = dataclasses.asdict(result.scenario.sensors.device)
