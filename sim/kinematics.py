@@ -11,7 +11,7 @@ differentiation); only the horizontal position is integrated (fourth-order corre
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, fields, replace
 
 import numpy as np
 import pandas as pd
@@ -116,6 +116,36 @@ class Truth:
         """Log clock [s]."""
         return self.time_us / 1e6
 
+    def at(self, time_us) -> Truth:
+        """The true state at log-clock times ``time_us`` [us] inside the sampled span.
+
+        Linear interpolation between neighbouring samples (exact at the samples themselves; the motion is smooth,
+        so the error over one 4 ms step is below 1e-6 of the signal); quaternions are interpolated on one
+        hemisphere and renormalised.
+        """
+        time_us = np.asarray(time_us, dtype=np.int64)
+        period_us = self.time_us[1] - self.time_us[0]
+        offset_us = time_us - self.time_us[0]
+        if len(time_us) and (offset_us.min() < 0 or time_us.max() > self.time_us[-1]):
+            raise ValueError("times outside the simulated span")
+        last = len(self.time_us) - 1
+        i = np.minimum(offset_us // period_us, last)
+        j = np.minimum(i + 1, last)
+        frac = (offset_us - i * period_us) / period_us
+        between = frac > 0
+
+        def lerp(values):
+            weight = frac.reshape(-1, *([1] * (values.ndim - 1)))
+            return np.where(between.reshape(weight.shape), values[i] + weight * (values[j] - values[i]), values[i])
+
+        arrays = {f.name: lerp(getattr(self, f.name)) for f in fields(self)
+                  if isinstance(getattr(self, f.name), np.ndarray) and f.name not in ("time_us", "q_nb")}
+        q0, q1 = self.q_nb[i], self.q_nb[j]
+        q1 = np.where(np.sum(q0 * q1, axis=1, keepdims=True) < 0, -q1, q1)
+        q = q0 + frac[:, None] * (q1 - q0)
+        q = np.where(between[:, None], q / np.linalg.norm(q, axis=1, keepdims=True), q0)
+        return replace(self, time_us=time_us, q_nb=q, **arrays)
+
     def segment_mask(self, name: str, margin_s: float = 0.0) -> np.ndarray:
         """Samples inside every leg called ``name`` (``"still"``, ``"turn"`` ...), ``margin_s`` [s] in from its ends."""
         mask = np.zeros(len(self.tau_s), dtype=bool)
@@ -184,6 +214,8 @@ def fly(mission: Mission, site: Site, wind: WindConfig, rng: np.random.Generator
     if period_us != round(period_us):
         raise ValueError(f"rate_hz={rate_hz} does not give a whole number of microseconds per sample")
     n = round(duration_s * rate_hz) + 1
+    if n < 2:
+        raise ValueError(f"duration_s={duration_s} is shorter than one sample interval at {rate_hz} Hz")
     time_us = round(site.log_start_s * 1e6) + np.arange(n, dtype=np.int64) * round(period_us)
     tau = np.arange(n) / rate_hz
     dt = 1.0 / rate_hz

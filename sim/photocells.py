@@ -16,7 +16,7 @@ from estimators.sun_vector import CURRENT_COLUMNS, device_sun_and_up, photocell_
 from ingest.frames import quat_to_matrix
 from ingest.sun_device import N_CELLS, SunDevice
 from sim.kinematics import Site, Truth
-from sim.sensors import sample_indices, sun_ned_at
+from sim.sensors import sample_times_us, sun_ned
 
 
 @dataclass(frozen=True)
@@ -71,7 +71,7 @@ def _cloud_factor(tau_s: np.ndarray, grade: SunCellGrade) -> np.ndarray:
     return 1.0 - (1.0 - grade.cloud_transmittance) * cover
 
 
-def simulate_sun_device(truth: Truth, site: Site, grade: SunCellGrade, device: SunDevice, imu_rate_hz: float,
+def simulate_sun_device(truth: Truth, site: Site, grade: SunCellGrade, device: SunDevice,
                         rng: np.random.Generator) -> tuple[pd.DataFrame, dict]:
     """Photocell currents at ``grade.rate_hz``; no direct sun with the sun below the horizon.
 
@@ -83,18 +83,18 @@ def simulate_sun_device(truth: Truth, site: Site, grade: SunCellGrade, device: S
         ``k_a``, ``sky_a``, ``noise_a``, ``failed_cell``, ``failed_window_s``, ``cloud_window_s``,
         ``cloud_transmittance``.
     """
-    idx = sample_indices(truth, grade.rate_hz, imu_rate_hz)
-    s_ned = sun_ned_at(truth, site, idx)
-    s_device, up_device = device_sun_and_up(quat_to_matrix(truth.q_nb[idx]), s_ned, device)
-    k = grade.k_a * _cloud_factor(truth.tau_s[idx], grade) * (s_ned[:, 2] < 0)
-    currents = (photocell_currents(s_device, k, np.full(len(idx), grade.sky_a), device, up_device)
-                + rng.standard_normal((len(idx), N_CELLS)) * grade.noise_a)
+    time_us = sample_times_us(truth, grade.rate_hz)
+    state, n = truth.at(time_us), len(time_us)
+    s_ned = sun_ned(truth, site, time_us)
+    s_device, up_device = device_sun_and_up(quat_to_matrix(state.q_nb), s_ned, device)
+    k = grade.k_a * _cloud_factor(state.tau_s, grade) * (s_ned[:, 2] < 0)
+    currents = (photocell_currents(s_device, k, np.full(n, grade.sky_a), device, up_device)
+                + rng.standard_normal((n, N_CELLS)) * grade.noise_a)
     if grade.failed_cell is not None:
         start, end = grade.failed_window_s
-        failed = (truth.tau_s[idx] >= start) & (truth.tau_s[idx] < end)
+        failed = (state.tau_s >= start) & (state.tau_s < end)
         currents[failed, grade.failed_cell - 1] = 0.0
-    frame = pd.DataFrame(currents, columns=list(CURRENT_COLUMNS), index=pd.Index(truth.time_us[idx] / 1e6,
-                                                                                  name="time_s"))
+    frame = pd.DataFrame(currents, columns=list(CURRENT_COLUMNS), index=pd.Index(time_us / 1e6, name="time_s"))
     errors = {"k_a": grade.k_a, "sky_a": grade.sky_a, "noise_a": grade.noise_a, "failed_cell": grade.failed_cell,
               "failed_window_s": grade.failed_window_s, "cloud_window_s": grade.cloud_window_s,
               "cloud_transmittance": grade.cloud_transmittance}

@@ -206,18 +206,13 @@ class GpsGrade:
     satellites_used: int = 12
 
 
-def sample_indices(truth: Truth, rate_hz: float, imu_rate_hz: float, start_s: float = 0.0) -> np.ndarray:
-    """Truth-grid indices of a sensor sampling at ``rate_hz`` from ``start_s`` [s after the first sample].
-
-    Samples fall on the IMU grid: when the rate does not divide the IMU rate (20 Hz at 250 Hz) each sample takes
-    the nearest grid point, a timing jitter of at most half an IMU period, as real sensors have.
-    """
-    stride = imu_rate_hz / rate_hz
-    if stride < 1:
-        raise ValueError(f"sensor rate {rate_hz} Hz exceeds the IMU rate {imu_rate_hz} Hz")
-    first = np.ceil(start_s * rate_hz - 1e-9)
-    last = (len(truth.time_us) - 1) / stride
-    return np.floor(np.arange(first, np.floor(last + 1e-9) + 1) * stride + 0.5).astype(np.int64)
+def sample_times_us(truth: Truth, rate_hz: float, start_s: float = 0.0) -> np.ndarray:
+    """A sensor's sample times [us, log clock]: every ``1 / rate_hz`` from ``start_s`` [s after the first truth
+    sample] to the end of the truth (rounded to the microsecond)."""
+    period_us = 1e6 / rate_hz
+    span_us = truth.time_us[-1] - truth.time_us[0]
+    k = np.arange(np.ceil(start_s * rate_hz - 1e-9), np.floor(span_us / period_us + 1e-9) + 1)
+    return truth.time_us[0] + np.round(k * period_us).astype(np.int64)
 
 
 def _frame(time_us: np.ndarray, columns: dict[str, np.ndarray]) -> pd.DataFrame:
@@ -231,24 +226,23 @@ def _misalignment(scale_limit: float, cross_limit: float, rng: np.random.Generat
     return matrix
 
 
-def _air_temperature_c(truth: Truth, site: Site, idx) -> np.ndarray:
-    return site.ground_temp_c - ISA_LAPSE_K_M * (truth.alt_m[idx] - site.ground_alt_m)
+def _air_temperature_c(truth: Truth, site: Site) -> np.ndarray:
+    return site.ground_temp_c - ISA_LAPSE_K_M * (truth.alt_m - site.ground_alt_m)
 
 
-def _static_pressure_pa(truth: Truth, site: Site, idx) -> np.ndarray:
-    return isa_pressure_pa(truth.alt_m[idx], site.sea_level_pressure_pa)
+def _static_pressure_pa(truth: Truth, site: Site) -> np.ndarray:
+    return isa_pressure_pa(truth.alt_m, site.sea_level_pressure_pa)
 
 
-def sun_ned_at(truth: Truth, site: Site, idx: np.ndarray) -> np.ndarray:
-    """Unit vector towards the sun in NED at truth samples ``idx`` (SPA every second at the true position,
-    interpolated; the sun moves < 0.005 deg/s), shape (len(idx), 3)."""
-    step = max(1, round(SUN_EPHEMERIS_STEP_S / ((truth.time_us[1] - truth.time_us[0]) / 1e6)))
-    coarse = np.unique(np.append(np.arange(0, len(truth.time_us), step), len(truth.time_us) - 1))
-    times = pd.to_datetime(truth.time_s[coarse] + truth.utc_offset_s, unit="s", utc=True)
-    s_coarse, _ = sun_direction_ned(times, truth.lat_deg[coarse], truth.lon_deg[coarse], truth.alt_m[coarse],
-                                    pressure_pa=_static_pressure_pa(truth, site, coarse),
-                                    temp_c=_air_temperature_c(truth, site, coarse))
-    s = np.column_stack([np.interp(idx, coarse, s_coarse[:, axis]) for axis in range(3)])
+def sun_ned(truth: Truth, site: Site, time_us: np.ndarray) -> np.ndarray:
+    """Unit vector towards the sun in NED at log-clock times ``time_us`` [us], shape (N, 3): NREL SPA every
+    second at the true position, interpolated (the sun moves < 0.005 deg/s)."""
+    coarse = truth.at(np.unique(np.append(sample_times_us(truth, 1.0 / SUN_EPHEMERIS_STEP_S), truth.time_us[-1])))
+    times = pd.to_datetime(coarse.time_s + truth.utc_offset_s, unit="s", utc=True)
+    s_coarse, _ = sun_direction_ned(times, coarse.lat_deg, coarse.lon_deg, coarse.alt_m,
+                                    pressure_pa=_static_pressure_pa(coarse, site),
+                                    temp_c=_air_temperature_c(coarse, site))
+    s = np.column_stack([np.interp(time_us, coarse.time_us, s_coarse[:, axis]) for axis in range(3)])
     return s / np.linalg.norm(s, axis=1, keepdims=True)
 
 
@@ -292,14 +286,14 @@ def simulate_imu(truth: Truth, grade: ImuGrade, rng: np.random.Generator) -> tup
     return frame, errors
 
 
-def panel_current_a(truth: Truth, site: Site, idx: np.ndarray, panel_current_max_a: float) -> np.ndarray:
-    """Solar-panel current [A]: maximum current times the cosine of the sun's incidence on the wing (body -z)."""
-    up_ned = -quat_to_matrix(truth.q_nb[idx])[:, :, 2]
-    return panel_current_max_a * np.maximum(0.0, np.einsum("ni,ni->n", up_ned, sun_ned_at(truth, site, idx)))
+def panel_current_a(truth: Truth, site: Site, time_us: np.ndarray, panel_current_max_a: float) -> np.ndarray:
+    """Solar-panel current [A] at ``time_us`` [us]: maximum current times the cosine of the sun's incidence on the
+    wing (body -z)."""
+    up_ned = -quat_to_matrix(truth.at(time_us).q_nb)[:, :, 2]
+    return panel_current_max_a * np.maximum(0.0, np.einsum("ni,ni->n", up_ned, sun_ned(truth, site, time_us)))
 
 
-def simulate_mag(truth: Truth, site: Site, grade: MagGrade, imu_rate_hz: float,
-                 rng: np.random.Generator) -> tuple[pd.DataFrame, dict]:
+def simulate_mag(truth: Truth, site: Site, grade: MagGrade, rng: np.random.Generator) -> tuple[pd.DataFrame, dict]:
     """Magnetometer ``m_b = (I + M) (C_bn m_n + d_solar) + b_hard + noise``.
 
     ``m_n`` is the World Magnetic Model field at the launch point and date; ``d_solar`` the solar-panel current
@@ -313,27 +307,27 @@ def simulate_mag(truth: Truth, site: Site, grade: MagGrade, imu_rate_hz: float,
         ``earth_field_ned_gauss``, ``hard_iron_gauss``, ``mag_matrix``, ``solar_disturbance_max_gauss`` (largest
         disturbance magnitude of the flight), ``noise_gauss``.
     """
-    idx = sample_indices(truth, grade.rate_hz, imu_rate_hz)
+    time_us = sample_times_us(truth, grade.rate_hz)
+    n = len(time_us)
     field_ned = earth_field_ned_gauss(*truth.origin, pd.Timestamp(truth.time_s[0] + truth.utc_offset_s, unit="s"))
     hard_iron = uniform_within(grade.hard_iron_limit_gauss, rng, (3,))
     matrix = _misalignment(grade.scale_limit, grade.cross_axis_limit, rng)
-    field_body = np.einsum("nji,j->ni", quat_to_matrix(truth.q_nb[idx]), field_ned)
+    field_body = np.einsum("nji,j->ni", quat_to_matrix(truth.at(time_us).q_nb), field_ned)
     direction = np.asarray(grade.solar_direction_body) / np.linalg.norm(grade.solar_direction_body)
-    disturbance = np.zeros((len(idx), 3))
+    disturbance = np.zeros((n, 3))
     if grade.solar_gauss_per_a > 0:
-        current = panel_current_a(truth, site, idx, grade.panel_current_max_a)
+        current = panel_current_a(truth, site, time_us, grade.panel_current_max_a)
         disturbance = np.outer(grade.solar_gauss_per_a * current, direction)
-    mag = (field_body + disturbance) @ matrix.T + hard_iron + rng.standard_normal((len(idx), 3)) * grade.noise_gauss
-    frame = _frame(truth.time_us[idx], {"mag_x_gauss": mag[:, 0], "mag_y_gauss": mag[:, 1],
-                                        "mag_z_gauss": mag[:, 2], "sample_time_s": truth.time_us[idx] / 1e6})
+    mag = (field_body + disturbance) @ matrix.T + hard_iron + rng.standard_normal((n, 3)) * grade.noise_gauss
+    frame = _frame(time_us, {"mag_x_gauss": mag[:, 0], "mag_y_gauss": mag[:, 1], "mag_z_gauss": mag[:, 2],
+                             "sample_time_s": time_us / 1e6})
     errors = {"earth_field_ned_gauss": field_ned, "hard_iron_gauss": hard_iron, "mag_matrix": matrix,
               "solar_disturbance_max_gauss": float(np.linalg.norm(disturbance, axis=1).max(initial=0.0)),
               "noise_gauss": grade.noise_gauss}
     return frame, errors
 
 
-def simulate_baro(truth: Truth, site: Site, grade: BaroGrade, imu_rate_hz: float,
-                  rng: np.random.Generator) -> tuple[pd.DataFrame, dict]:
+def simulate_baro(truth: Truth, site: Site, grade: BaroGrade, rng: np.random.Generator) -> tuple[pd.DataFrame, dict]:
     """Barometer: true ISA static pressure + offset + linear drift + noise; ``alt_m`` = ISA altitude of the reading
     for the autopilot's QNH setting (PX4 ``baro_alt_meter``).
 
@@ -345,22 +339,21 @@ def simulate_baro(truth: Truth, site: Site, grade: BaroGrade, imu_rate_hz: float
         ``offset_pa``, ``drift_pa_s`` (the offset at time t after the first sample is offset + drift t),
         ``noise_pa``, ``qnh_setting_pa``, ``sea_level_pressure_pa``.
     """
-    idx = sample_indices(truth, grade.rate_hz, imu_rate_hz)
+    time_us = sample_times_us(truth, grade.rate_hz)
+    state, n = truth.at(time_us), len(time_us)
     offset = float(uniform_within(grade.offset_limit_pa, rng))
     drift = float(uniform_within(grade.drift_limit_pa_s, rng))
-    elapsed = truth.tau_s[idx]
-    pressure = (_static_pressure_pa(truth, site, idx) + offset + drift * elapsed
-                + rng.standard_normal(len(idx)) * grade.noise_pa)
-    temperature = grade.temperature_c + rng.standard_normal(len(idx)) * grade.temperature_noise_c
-    frame = _frame(truth.time_us[idx], {"alt_m": isa_altitude_m(pressure, grade.qnh_setting_pa),
-                                        "pressure_pa": pressure, "temp_c": temperature,
-                                        "sample_time_s": truth.time_us[idx] / 1e6})
+    pressure = (_static_pressure_pa(state, site) + offset + drift * state.tau_s
+                + rng.standard_normal(n) * grade.noise_pa)
+    temperature = grade.temperature_c + rng.standard_normal(n) * grade.temperature_noise_c
+    frame = _frame(time_us, {"alt_m": isa_altitude_m(pressure, grade.qnh_setting_pa), "pressure_pa": pressure,
+                             "temp_c": temperature, "sample_time_s": time_us / 1e6})
     errors = {"offset_pa": offset, "drift_pa_s": drift, "noise_pa": grade.noise_pa,
               "qnh_setting_pa": grade.qnh_setting_pa, "sea_level_pressure_pa": site.sea_level_pressure_pa}
     return frame, errors
 
 
-def simulate_airspeed(truth: Truth, site: Site, grade: AirspeedGrade, imu_rate_hz: float,
+def simulate_airspeed(truth: Truth, site: Site, grade: AirspeedGrade,
                       rng: np.random.Generator) -> tuple[pd.DataFrame, dict, np.ndarray]:
     """Airspeed from differential pressure ``dp = rho V_a^2 / 2 + offset + noise`` (eq. 5).
 
@@ -376,22 +369,21 @@ def simulate_airspeed(truth: Truth, site: Site, grade: AirspeedGrade, imu_rate_h
     air_temp_c : numpy.ndarray
         Measured outside-air temperature per row [degC] (PX4 ``air_temperature_celsius``).
     """
-    idx = sample_indices(truth, grade.rate_hz, imu_rate_hz)
+    time_us = sample_times_us(truth, grade.rate_hz)
+    state, n = truth.at(time_us), len(time_us)
     offset = float(uniform_within(grade.offset_limit_pa, rng))
-    static = _static_pressure_pa(truth, site, idx)
-    rho = air_density_kg_m3(static, _air_temperature_c(truth, site, idx))
-    diff_pressure = (0.5 * rho * truth.airspeed_m_s[idx] ** 2 + offset
-                     + rng.standard_normal(len(idx)) * grade.noise_pa)
-    air_temp = _air_temperature_c(truth, site, idx) + rng.standard_normal(len(idx)) * grade.air_temp_noise_c
+    static = _static_pressure_pa(state, site)
+    rho = air_density_kg_m3(static, _air_temperature_c(state, site))
+    diff_pressure = 0.5 * rho * state.airspeed_m_s**2 + offset + rng.standard_normal(n) * grade.noise_pa
+    air_temp = _air_temperature_c(state, site) + rng.standard_normal(n) * grade.air_temp_noise_c
     ias = np.sign(diff_pressure) * np.sqrt(2.0 * np.abs(diff_pressure) / RHO_SEA_LEVEL_KG_M3)
     tas = ias * np.sqrt(RHO_SEA_LEVEL_KG_M3 / air_density_kg_m3(static, air_temp))
-    frame = _frame(truth.time_us[idx], {"ias_m_s": ias, "tas_m_s": tas, "sample_time_s": truth.time_us[idx] / 1e6})
+    frame = _frame(time_us, {"ias_m_s": ias, "tas_m_s": tas, "sample_time_s": time_us / 1e6})
     errors = {"offset_pa": offset, "noise_pa": grade.noise_pa, "air_temp_noise_c": grade.air_temp_noise_c}
     return frame, errors, air_temp
 
 
-def simulate_gps(truth: Truth, grade: GpsGrade, imu_rate_hz: float,
-                 rng: np.random.Generator) -> tuple[pd.DataFrame, dict]:
+def simulate_gps(truth: Truth, grade: GpsGrade, rng: np.random.Generator) -> tuple[pd.DataFrame, dict]:
     """GPS fixes: true position + Gauss-Markov error (eqs 6-7), NED velocity + white noise, UTC time.
 
     Rows are published ``latency_s`` after their measurement time (``sample_time_s``) and only once published
@@ -407,21 +399,21 @@ def simulate_gps(truth: Truth, grade: GpsGrade, imu_rate_hz: float,
         ``velocity_noise_m_s`` and ``latency_s``.
     """
     latency_us = round(grade.latency_s * 1e6)
-    idx = sample_indices(truth, grade.rate_hz, imu_rate_hz, grade.time_to_first_fix_s)
-    idx = idx[truth.time_us[idx] + latency_us <= truth.time_us[-1]]
-    n = len(idx)
+    time_us = sample_times_us(truth, grade.rate_hz, grade.time_to_first_fix_s)
+    time_us = time_us[time_us + latency_us <= truth.time_us[-1]]
+    state, n = truth.at(time_us), len(time_us)
     error = gauss_markov(n, 1.0 / grade.rate_hz, grade.position_tau_s, grade.position_sigma_m, rng,
                          stationary_start=grade.stationary_start)
-    velocity = truth.vel_ned_m_s[idx] + rng.standard_normal((n, 3)) * grade.velocity_noise_m_s
-    position = truth.pos_ned_m[idx] + error
+    velocity = state.vel_ned_m_s + rng.standard_normal((n, 3)) * grade.velocity_noise_m_s
+    position = state.pos_ned_m + error
     lat, lon, alt = ned_to_geodetic(position[:, 0], position[:, 1], position[:, 2], *truth.origin)
     sigma = np.asarray(grade.position_sigma_m)
-    utc_us = truth.time_us[idx] + round(truth.utc_offset_s * 1e6)
-    frame = _frame(truth.time_us[idx] + latency_us, {
+    utc_us = time_us + round(truth.utc_offset_s * 1e6)
+    frame = _frame(time_us + latency_us, {
         "lat_deg": lat, "lon_deg": lon, "alt_m": alt,
         "vn_m_s": velocity[:, 0], "ve_m_s": velocity[:, 1], "vd_m_s": velocity[:, 2],
         "eph_m": np.full(n, np.hypot(sigma[0], sigma[1])), "epv_m": np.full(n, sigma[2]),
-        "fix_type": np.full(n, 3), "time_utc_s": utc_us / 1e6, "sample_time_s": truth.time_us[idx] / 1e6,
+        "fix_type": np.full(n, 3), "time_utc_s": utc_us / 1e6, "sample_time_s": time_us / 1e6,
         "speed_accuracy_m_s": np.full(n, grade.velocity_noise_m_s),
         "satellites_used": np.full(n, grade.satellites_used)})
     rms = np.sqrt(np.mean(error**2, axis=0)) if n else np.full(3, np.nan)

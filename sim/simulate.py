@@ -13,7 +13,7 @@ from ingest.px4_topics import TRUTH_WIND_TOPIC
 from sim.kinematics import Truth, fly
 from sim.photocells import simulate_sun_device
 from sim.scenarios import Scenario
-from sim.sensors import sample_indices, simulate_airspeed, simulate_baro, simulate_gps, simulate_imu, simulate_mag
+from sim.sensors import sample_times_us, simulate_airspeed, simulate_baro, simulate_gps, simulate_imu, simulate_mag
 
 #: ``ver_hw`` / ``LogMetadata.hardware`` of simulated logs.
 HARDWARE = "SOLARNAV_SIM"
@@ -58,19 +58,19 @@ class SimResult:
     airspeed_air_temp_c: np.ndarray
 
 
-def _truth_streams(truth: Truth, idx: np.ndarray) -> dict[str, pd.DataFrame]:
-    index = pd.Index(truth.time_us[idx] / 1e6, name="time_s")
-    q = truth.q_nb[idx]
+def _truth_streams(truth: Truth) -> dict[str, pd.DataFrame]:
+    index = pd.Index(truth.time_us / 1e6, name="time_s")
+    q = truth.q_nb
     roll, pitch, yaw = (np.degrees(angle) for angle in quat_to_euler(q))
-    pos, vel, wind = truth.pos_ned_m[idx], truth.vel_ned_m_s[idx], truth.wind_ned_m_s[idx]
+    pos, vel, wind = truth.pos_ned_m, truth.vel_ned_m_s, truth.wind_ned_m_s
     return {
         "truth_attitude": pd.DataFrame({"qw": q[:, 0], "qx": q[:, 1], "qy": q[:, 2], "qz": q[:, 3],
                                         "roll_deg": roll, "pitch_deg": pitch, "yaw_deg": yaw}, index=index),
         "truth_local_position": pd.DataFrame({"x_m": pos[:, 0], "y_m": pos[:, 1], "z_m": pos[:, 2],
                                               "vx_m_s": vel[:, 0], "vy_m_s": vel[:, 1], "vz_m_s": vel[:, 2]},
                                              index=index),
-        "truth_global_position": pd.DataFrame({"lat_deg": truth.lat_deg[idx], "lon_deg": truth.lon_deg[idx],
-                                               "alt_m": truth.alt_m[idx]}, index=index),
+        "truth_global_position": pd.DataFrame({"lat_deg": truth.lat_deg, "lon_deg": truth.lon_deg,
+                                               "alt_m": truth.alt_m}, index=index),
         "truth_wind": pd.DataFrame({"wind_n_m_s": wind[:, 0], "wind_e_m_s": wind[:, 1]}, index=index),
     }
 
@@ -100,13 +100,12 @@ def simulate(scenario: Scenario, rng: np.random.Generator, *, duration_s: float 
     site = scenario.site
     streams, errors = {}, {}
     streams["imu"], errors["imu"] = simulate_imu(truth, sensors.imu, rng)
-    streams["mag"], errors["mag"] = simulate_mag(truth, site, sensors.mag, imu_rate, rng)
-    streams["baro"], errors["baro"] = simulate_baro(truth, site, sensors.baro, imu_rate, rng)
-    streams["airspeed"], errors["airspeed"], air_temp = simulate_airspeed(truth, site, sensors.airspeed, imu_rate,
-                                                                          rng)
-    streams["gps"], errors["gps"] = simulate_gps(truth, sensors.gps, imu_rate, rng)
-    sun, errors["sun"] = simulate_sun_device(truth, site, sensors.sun, sensors.device, imu_rate, rng)
-    streams.update(_truth_streams(truth, sample_indices(truth, scenario.truth_rate_hz, imu_rate)))
+    streams["mag"], errors["mag"] = simulate_mag(truth, site, sensors.mag, rng)
+    streams["baro"], errors["baro"] = simulate_baro(truth, site, sensors.baro, rng)
+    streams["airspeed"], errors["airspeed"], air_temp = simulate_airspeed(truth, site, sensors.airspeed, rng)
+    streams["gps"], errors["gps"] = simulate_gps(truth, sensors.gps, rng)
+    sun, errors["sun"] = simulate_sun_device(truth, site, sensors.sun, sensors.device, rng)
+    streams.update(_truth_streams(truth.at(sample_times_us(truth, scenario.truth_rate_hz))))
     streams = {name: frame for name, frame in streams.items() if len(frame)}
     infos = {name: stream_info(STREAM_TOPICS[name], frame.index.to_numpy()) for name, frame in streams.items()}
     streams["sun"] = sun

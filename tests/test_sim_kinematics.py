@@ -109,6 +109,19 @@ def test_body_rates_and_specific_force_are_continuous(truth):
         assert coarse_jump / fine_jump == pytest.approx(2.0, rel=0.1), name
 
 
+def test_truth_at_other_times(truth):
+    on_grid = truth.at(truth.time_us[::7])
+    for name in ("pos_ned_m", "q_nb", "rates_rad_s", "lat_deg", "airspeed_m_s", "tau_s"):
+        np.testing.assert_array_equal(getattr(on_grid, name), getattr(truth, name)[::7], err_msg=name)
+    halfway = truth.at(truth.time_us[:-1] + 2000)
+    np.testing.assert_allclose(halfway.pos_ned_m, 0.5 * (truth.pos_ned_m[1:] + truth.pos_ned_m[:-1]), atol=1e-9)
+    np.testing.assert_allclose(np.linalg.norm(halfway.q_nb, axis=1), 1.0, atol=1e-12)
+    angle = 2 * np.arccos(np.clip(np.abs(np.sum(halfway.q_nb * truth.q_nb[:-1], axis=1)), 0.0, 1.0))
+    assert angle.max() < 0.5 * DT * np.linalg.norm(truth.rates_rad_s, axis=1).max() + 1e-9  # half a step's turn
+    with pytest.raises(ValueError, match="outside"):
+        truth.at([truth.time_us[-1] + 1])
+
+
 def test_duration_extends_the_last_leg():
     mission = Mission(legs=(Still(2.0), HandLaunch(), Turn(360.0, radius_m=100.0)))
     truth = fly(mission, Site(), WindConfig(speed_m_s=0.0, slow_sigma_m_s=0.0), np.random.default_rng(0),

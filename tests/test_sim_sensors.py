@@ -45,6 +45,11 @@ def truth():
     return fly(MISSION, SITE, WindConfig(), np.random.default_rng(5), rate_hz=IMU_HZ)
 
 
+def _state_at(truth, frame):
+    """The truth at a stream's sample times."""
+    return truth.at(np.round(frame["sample_time_s"].to_numpy() * 1e6).astype(np.int64))
+
+
 def _rel_std_error(residual, sigma):
     return np.abs(np.std(residual, axis=0) / sigma - 1.0)
 
@@ -90,10 +95,9 @@ def test_gyro_bias_random_walk(truth):
 
 def test_magnetometer_model(truth):
     grade = dataclasses.replace(MagGrade(), solar_gauss_per_a=0.0)
-    frame, errors = simulate_mag(truth, SITE, grade, IMU_HZ, np.random.default_rng(3))
-    idx = np.searchsorted(truth.time_s, frame.index.to_numpy())
+    frame, errors = simulate_mag(truth, SITE, grade, np.random.default_rng(3))
     mag = frame[["mag_x_gauss", "mag_y_gauss", "mag_z_gauss"]].to_numpy()
-    field_body = np.einsum("nji,j->ni", quat_to_matrix(truth.q_nb[idx]), errors["earth_field_ned_gauss"])
+    field_body = np.einsum("nji,j->ni", quat_to_matrix(_state_at(truth, frame).q_nb), errors["earth_field_ned_gauss"])
     residual = mag - field_body @ errors["mag_matrix"].T
     assert _rel_std_error(residual, grade.noise_gauss).max() < STD_RTOL
     np.testing.assert_allclose(residual.mean(axis=0), errors["hard_iron_gauss"],
@@ -108,25 +112,25 @@ def test_magnetometer_model(truth):
 
 def test_solar_panel_current_disturbs_the_magnetometer(truth):
     clean_grade = dataclasses.replace(MagGrade(), solar_gauss_per_a=0.0)
-    disturbed, errors = simulate_mag(truth, SITE, MagGrade(), IMU_HZ, np.random.default_rng(3))
-    clean, _ = simulate_mag(truth, SITE, clean_grade, IMU_HZ, np.random.default_rng(3))
+    disturbed, errors = simulate_mag(truth, SITE, MagGrade(), np.random.default_rng(3))
+    clean, _ = simulate_mag(truth, SITE, clean_grade, np.random.default_rng(3))
     difference = np.linalg.norm((disturbed - clean).to_numpy()[:, :3], axis=1)
-    idx = np.searchsorted(truth.time_s, disturbed.index.to_numpy())
-    current = panel_current_a(truth, SITE, idx, MagGrade().panel_current_max_a)
+    state = _state_at(truth, disturbed)
+    current = panel_current_a(truth, SITE, state.time_us, MagGrade().panel_current_max_a)
     # disturbance = gain x panel current (through the 1 % soft-iron matrix); it varies as the wing turns to the sun
     np.testing.assert_allclose(difference, MagGrade().solar_gauss_per_a * current, rtol=0.02)
     assert errors["solar_disturbance_max_gauss"] == pytest.approx(difference.max(), rel=0.02)
-    turning = truth.segment_mask("turn")[idx]
+    turning = state.segment_mask("turn")
     assert np.ptp(current[turning]) > 0.2  # [A]
 
 
 def test_barometer_offset_drift_noise(truth):
     grade = BaroGrade()
-    frame, errors = simulate_baro(truth, SITE, grade, IMU_HZ, np.random.default_rng(4))
-    idx = np.searchsorted(truth.time_s, frame.index.to_numpy())
-    true_pressure = isa_pressure_pa(truth.alt_m[idx], SITE.sea_level_pressure_pa)
+    frame, errors = simulate_baro(truth, SITE, grade, np.random.default_rng(4))
+    state = _state_at(truth, frame)
+    true_pressure = isa_pressure_pa(state.alt_m, SITE.sea_level_pressure_pa)
     residual = frame["pressure_pa"].to_numpy() - true_pressure
-    elapsed = truth.tau_s[idx]
+    elapsed = state.tau_s
     model = errors["offset_pa"] + errors["drift_pa_s"] * elapsed
     assert _rel_std_error(residual - model, grade.noise_pa) < STD_RTOL
     slope, intercept = np.polyfit(elapsed, residual, 1)
@@ -135,26 +139,26 @@ def test_barometer_offset_drift_noise(truth):
     assert abs(errors["offset_pa"]) <= grade.offset_limit_pa
     np.testing.assert_allclose(frame["alt_m"], isa_altitude_m(frame["pressure_pa"], grade.qnh_setting_pa))
     # the offset shows up as a baro altitude bias of about 8.4 m per hPa near the ground
-    still = truth.segment_mask("still")[idx]
-    bias_m = np.mean(frame["alt_m"].to_numpy()[still] - truth.alt_m[idx][still])
+    still = state.segment_mask("still")
+    bias_m = np.mean(frame["alt_m"].to_numpy()[still] - state.alt_m[still])
     assert bias_m == pytest.approx(-errors["offset_pa"] / 100 * 8.4, abs=0.3 + 0.05 * abs(errors["offset_pa"]))
 
 
 def test_airspeed_from_differential_pressure_and_wind_triangle(truth):
     grade = AirspeedGrade()
-    frame, errors, air_temp = simulate_airspeed(truth, SITE, grade, IMU_HZ, np.random.default_rng(6))
-    idx = np.searchsorted(truth.time_s, frame.index.to_numpy())
+    frame, errors, air_temp = simulate_airspeed(truth, SITE, grade, np.random.default_rng(6))
+    state = _state_at(truth, frame)
     ias = frame["ias_m_s"].to_numpy()
     diff_pressure = np.sign(ias) * 0.5 * RHO_SEA_LEVEL_KG_M3 * ias**2
-    temperature_k = SITE.ground_temp_c + 273.15 - 0.0065 * (truth.alt_m[idx] - SITE.ground_alt_m)
-    rho = isa_pressure_pa(truth.alt_m[idx], SITE.sea_level_pressure_pa) / (287.0531 * temperature_k)
-    residual = diff_pressure - 0.5 * rho * truth.airspeed_m_s[idx] ** 2 - errors["offset_pa"]
+    temperature_k = SITE.ground_temp_c + 273.15 - 0.0065 * (state.alt_m - SITE.ground_alt_m)
+    rho = isa_pressure_pa(state.alt_m, SITE.sea_level_pressure_pa) / (287.0531 * temperature_k)
+    residual = diff_pressure - 0.5 * rho * state.airspeed_m_s**2 - errors["offset_pa"]
     assert _rel_std_error(residual, grade.noise_pa) < STD_RTOL
     assert abs(errors["offset_pa"]) <= grade.offset_limit_pa
     assert _rel_std_error(air_temp - (temperature_k - 273.15), grade.air_temp_noise_c) < STD_RTOL
     # wind triangle with the measured airspeed: |GPS-like ground velocity - wind| = TAS up to the sensor errors
-    cruise = truth.segment_mask("cruise")[idx]
-    air_velocity = truth.vel_ned_m_s[idx] - truth.wind_ned_m_s[idx]
+    cruise = state.segment_mask("cruise")
+    air_velocity = state.vel_ned_m_s - state.wind_ned_m_s
     tas_error = frame["tas_m_s"].to_numpy()[cruise] - np.linalg.norm(air_velocity[cruise], axis=1)
     offset_effect = errors["offset_pa"] / (rho[cruise].mean() * 12.5)  # d(V)/d(dp) = 1 / (rho V)
     assert np.mean(tas_error) == pytest.approx(offset_effect, abs=0.02)
@@ -174,14 +178,14 @@ def test_gauss_markov_statistics():
 
 def test_gps_error_process_latency_and_time(truth):
     grade = GpsGrade()
-    frame, errors = simulate_gps(truth, grade, IMU_HZ, np.random.default_rng(8))
+    frame, errors = simulate_gps(truth, grade, np.random.default_rng(8))
     sample_time = frame["sample_time_s"].to_numpy()
-    idx = np.searchsorted(truth.time_s, sample_time)
+    state = _state_at(truth, frame)
     np.testing.assert_allclose(frame.index.to_numpy() - sample_time, grade.latency_s, atol=1e-9)
     np.testing.assert_allclose(frame["time_utc_s"].to_numpy() - sample_time, truth.utc_offset_s, atol=1e-6)
     assert sample_time[0] - truth.time_s[0] == pytest.approx(grade.time_to_first_fix_s)
     measured = geodetic_to_ned(frame["lat_deg"], frame["lon_deg"], frame["alt_m"], *truth.origin)
-    true = geodetic_to_ned(truth.lat_deg[idx], truth.lon_deg[idx], truth.alt_m[idx], *truth.origin)
+    true = geodetic_to_ned(state.lat_deg, state.lon_deg, state.alt_m, *truth.origin)
     error = np.column_stack(measured) - np.column_stack(true)
     np.testing.assert_allclose(np.sqrt(np.mean(error**2, axis=0)), errors["position_error_rms_ned_m"], atol=1e-3)
     # Gauss-Markov: the innovation e[k+1] - a e[k] with a = exp(-T/tau) is white with the configured std
@@ -191,13 +195,13 @@ def test_gps_error_process_latency_and_time(truth):
     assert _rel_std_error(innovation, expected).max() < STD_RTOL
     lag1 = np.sum(innovation[1:] * innovation[:-1], axis=0) / np.sum(innovation**2, axis=0)
     assert np.abs(lag1).max() < 0.1
-    velocity_error = frame[["vn_m_s", "ve_m_s", "vd_m_s"]].to_numpy() - truth.vel_ned_m_s[idx]
+    velocity_error = frame[["vn_m_s", "ve_m_s", "vd_m_s"]].to_numpy() - state.vel_ned_m_s
     assert _rel_std_error(velocity_error.ravel(), grade.velocity_noise_m_s) < STD_RTOL
     # ground speed and course (eqs 8-9) from the GPS velocity: course noise ~ sigma_V / V_g
-    flying = truth.airborne[idx] == 1.0
-    true_course = np.arctan2(truth.vel_ned_m_s[idx, 1], truth.vel_ned_m_s[idx, 0])
+    flying = state.airborne == 1.0
+    true_course = np.arctan2(state.vel_ned_m_s[:, 1], state.vel_ned_m_s[:, 0])
     course_error = np.angle(np.exp(1j * (np.arctan2(frame["ve_m_s"], frame["vn_m_s"]).to_numpy() - true_course)))
-    ground_speed = np.hypot(truth.vel_ned_m_s[idx, 0], truth.vel_ned_m_s[idx, 1])
+    ground_speed = np.hypot(state.vel_ned_m_s[:, 0], state.vel_ned_m_s[:, 1])
     expected_course_sigma = grade.velocity_noise_m_s / ground_speed[flying]
     assert np.std(course_error[flying] / expected_course_sigma) == pytest.approx(1.0, rel=0.1)
 
@@ -207,8 +211,8 @@ def test_photocell_currents_faults_and_clouds(truth):
     grade = SunCellGrade(failed_cell=3, failed_window_s=(50.0, 80.0), cloud_window_s=(100.0, 140.0),
                          cloud_edge_s=5.0)
     clean = dataclasses.replace(grade, noise_a=0.0, failed_cell=None, cloud_window_s=None)
-    frame, errors = simulate_sun_device(truth, SITE, grade, device, IMU_HZ, np.random.default_rng(10))
-    noiseless, _ = simulate_sun_device(truth, SITE, clean, device, IMU_HZ, np.random.default_rng(10))
+    frame, errors = simulate_sun_device(truth, SITE, grade, device, np.random.default_rng(10))
+    noiseless, _ = simulate_sun_device(truth, SITE, clean, device, np.random.default_rng(10))
     tau = frame.index.to_numpy() - truth.time_s[0]
     failed = (tau >= 50.0) & (tau < 80.0)
     cloud = (tau > 105.0) & (tau < 135.0)
@@ -218,12 +222,12 @@ def test_photocell_currents_faults_and_clouds(truth):
     assert _rel_std_error(residual.ravel(), grade.noise_a) < STD_RTOL
     # at rest: top cell = k sin(sun elevation seen from the pitched body) + the full sky current
     still = tau < 40.0
-    idx = np.searchsorted(truth.time_s, frame.index.to_numpy())
+    attitude = quat_to_matrix(truth.at(np.round(frame.index.to_numpy() * 1e6).astype(np.int64)).q_nb)[still]
     times = pd.to_datetime(frame.index.to_numpy()[still] + truth.utc_offset_s, unit="s", utc=True)
     s_ned, elevation = sun_direction_ned(times, SITE.lat_deg, SITE.lon_deg, SITE.ground_alt_m)
     assert 25.0 < elevation.mean() < 32.0  # autumn morning at the paper's site
-    s_body = np.einsum("nji,nj->ni", quat_to_matrix(truth.q_nb[idx[still]]), s_ned)
-    up_body = -quat_to_matrix(truth.q_nb[idx[still]])[:, 2, :]
+    s_body = np.einsum("nji,nj->ni", attitude, s_ned)
+    up_body = -attitude[:, 2, :]
     expected_top = grade.k_a * np.maximum(0.0, -s_body[:, 2]) + grade.sky_a * 0.5 * (1.0 - up_body[:, 2])
     np.testing.assert_allclose(noiseless["i1_a"].to_numpy()[still], expected_top, atol=2e-6)
     # under the cloud the direct-sun part drops to the transmittance
