@@ -393,10 +393,15 @@ def _sample_times_s(frame: pd.DataFrame) -> np.ndarray:
 
 
 def _utc_offset_s(gps: pd.DataFrame | None) -> float | None:
-    """UTC unix time minus log time [s]: median over GPS rows that carry UTC; None without any."""
+    """UTC unix time minus log time [s]: median over GPS rows that carry UTC; None without any.
+
+    The receiver's UTC stamps the measurement, so it is paired with the sample time when logged (the publication
+    time ``timestamp`` lags it by the receiver latency, ~0.1 s).
+    """
     if gps is None:
         return None
-    offset_s = gps["time_utc_s"].to_numpy() - gps.index.to_numpy()
+    log_time_s = gps["sample_time_s"].to_numpy() if "sample_time_s" in gps else gps.index.to_numpy()
+    offset_s = gps["time_utc_s"].to_numpy() - log_time_s
     offset_s = offset_s[np.isfinite(offset_s)]
     return float(np.median(offset_s)) if len(offset_s) else None
 
