@@ -222,7 +222,8 @@ def repair_covariance(P, min_var, max_var, work, eig_floor):
     """Keep ``P`` a usable covariance; returns True when an eigenvalue repair was needed.
 
     Symmetrises, applies :func:`limit_variances`, then tests positive definiteness with a Cholesky
-    factorisation; only when it fails, eigenvalues are clipped to ``eig_floor``.
+    factorisation; only when it fails, eigenvalues are clipped to ``eig_floor``. A non-finite ``P`` is left
+    alone (returns False): that is divergence, for :func:`is_healthy` and :func:`reset_filter`.
 
     Parameters
     ----------
@@ -237,6 +238,10 @@ def repair_covariance(P, min_var, max_var, work, eig_floor):
     n = P.shape[0]
     symmetrize(P)
     limit_variances(P, min_var, max_var)
+    for i in range(n):
+        for j in range(n):
+            if not math.isfinite(P[i, j]):
+                return False
     # Cholesky test
     for j in range(n):
         s = P[j, j]

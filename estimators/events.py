@@ -81,6 +81,8 @@ GPS_MAX_EPH_M = 10.0
 GPS_ORIGIN_MAX_EPH_M = 5.0
 #: Magnetometer stream accepted when its median field strength lies in this range [gauss] (math note 7).
 MAG_STRENGTH_RANGE_GAUSS = (0.15, 1.0)
+#: A magnetometer whose inclination at the start differs more than this from the reference field is not used [deg].
+MAG_DIP_TOLERANCE_DEG = 15.0
 #: Horizontal accuracy assumed when a receiver reports none [m] (Table 1: NEO-M8N 2.5 m).
 GPS_DEFAULT_EPH_M = 2.5
 #: Seconds of GPS used to estimate the barometer offset (math note 3.0).
@@ -379,8 +381,6 @@ def build_replay_inputs(flight_log: FlightLog, config: EstimatorConfig | None = 
                              "above the horizon and a GPS fix for the ephemeris)", source=source, field="heading")
         parts.append(_sun_events(sun_observations, source))
         has_sun = True
-    if mag is None and not has_sun:
-        degradations.append("no absolute heading (magnetometer/sun): yaw dead-reckoned from the gyro")
 
     airspeed = _sensor_rows(flight_log, "airspeed", ("tas_m_s",), skipped)
     if airspeed is not None:
@@ -412,12 +412,19 @@ def build_replay_inputs(flight_log: FlightLog, config: EstimatorConfig | None = 
         parts.append((times, ZERO_VELOCITY, np.zeros((len(times), 3)),
                       np.full((len(times), 3), config.noise.zero_velocity_sigma_m_s ** 2)))
 
+    alignment, mag_rejection = _alignment(flight_log, imu, gps, mag, mag_field, mag_strength, origin, baro,
+                                          baro_offset_m, gravity, config, warnings)
+    if mag_rejection is not None:
+        skipped["mag"] = mag_rejection
+        parts = [part for part in parts if part[1] != MAG]
+        mag = None
+    if mag is None and not has_sun:
+        degradations.append("no absolute heading (magnetometer/sun): yaw dead-reckoned from the gyro"
+                            + (" from the autopilot's initial yaw" if alignment.yaw_source == "onboard_attitude"
+                               else ""))
     output_time_s = np.arange(math.ceil(t_start * rate_hz - 1e-9), math.floor(t_end * rate_hz + 1e-9) + 1) / rate_hz
     parts.append((output_time_s, OUTPUT, np.zeros((len(output_time_s), 0)), np.zeros((len(output_time_s), 0))))
     events = _merge_events(parts, imu.time_s)
-
-    alignment = _alignment(flight_log, imu, gps, mag, mag_field, mag_strength, origin, baro, baro_offset_m,
-                           gravity, config, warnings)
     used = tuple(SENSOR_NAMES[k] for k in range(OUTPUT) if events.count(k) > 0)
     plan = SensorPlan(fixed_wing=fixed_wing, has_gps=gps is not None, has_baro=baro is not None,
                       has_mag=mag is not None, has_airspeed=airspeed is not None, has_sun=has_sun, used=used,
@@ -782,7 +789,8 @@ def yaw_from_magnetometer(m_b: np.ndarray, roll_rad: float, pitch_rad: float, fi
 
 def _alignment(flight_log: FlightLog, imu: ImuSamples, gps: _GpsRows | None, mag, mag_field: np.ndarray,
                mag_strength: float, origin: Origin, baro, baro_offset_m: float, gravity: float,
-               config: EstimatorConfig, warnings: list[str]) -> Alignment:
+               config: EstimatorConfig, warnings: list[str]) -> tuple[Alignment, str | None]:
+    """Initial state, and why the magnetometer must not be used (None when it is consistent)."""
     t0 = float(imu.time_s[0])
     window = still_window(imu, gravity, config)
     velocity = np.zeros(3)
@@ -816,19 +824,32 @@ def _alignment(flight_log: FlightLog, imu: ImuSamples, gps: _GpsRows | None, mag
         i = int(np.argmin(np.abs(gps.time_s - t0)))
         velocity = gps.vel_ned[i].copy()
     yaw, yaw_source = 0.0, "none"
+    mag_rejection = None
     if mag is not None:
         t_end = still_s[1] if still_s is not None else mag[0][0] + 0.5
         sel = mag[0] <= max(t_end, mag[0][0])
         m_b = mag[1][sel].mean(axis=0) / mag_strength
-        yaw, yaw_source = yaw_from_magnetometer(m_b, roll, pitch, mag_field), "mag"
-    elif onboard is not None and len(onboard) and {"qw", "qx", "qy", "qz"} <= set(onboard.columns):
+        # the measured inclination must match the reference field (a wrongly calibrated or rotated
+        # magnetometer would otherwise give a confidently wrong yaw)
+        down_b = np.array([-math.sin(pitch), math.sin(roll) * math.cos(pitch), math.cos(roll) * math.cos(pitch)])
+        dip_measured = math.degrees(math.asin(float(np.clip(np.dot(m_b, down_b) / np.linalg.norm(m_b), -1, 1))))
+        dip_expected = math.degrees(math.asin(float(np.clip(mag_field[2], -1, 1))))
+        if abs(dip_measured - dip_expected) > MAG_DIP_TOLERANCE_DEG:
+            mag_rejection = (f"inclination {dip_measured:.1f} deg at the start does not match the earth field's "
+                             f"{dip_expected:.1f} deg (miscalibrated or rotated magnetometer)")
+        else:
+            yaw, yaw_source = yaw_from_magnetometer(m_b, roll, pitch, mag_field), "mag"
+    has_onboard = onboard is not None and len(onboard) and {"qw", "qx", "qy", "qz"} <= set(onboard.columns)
+    if yaw_source == "none" and has_onboard:
         yaw, yaw_source = _onboard_euler_at(onboard, t0)[2], "onboard_attitude"
-        warnings.append("initial yaw borrowed from the autopilot's attitude (no magnetometer)")
-    elif gps is not None and np.hypot(velocity[0], velocity[1]) > config.timing.min_ground_speed_m_s:
+        warnings.append("initial yaw borrowed from the autopilot's attitude (no usable magnetometer)")
+    elif (yaw_source == "none" and gps is not None
+          and np.hypot(velocity[0], velocity[1]) > config.timing.min_ground_speed_m_s):
         yaw, yaw_source = math.atan2(velocity[1], velocity[0]), "gps_course"
-    return Alignment(roll_rad=roll, pitch_rad=pitch, yaw_rad=yaw, gyro_bias_rad_s=gyro_bias,
-                     velocity_ned_m_s=velocity, position_ned_m=position, still_window_s=still_s,
-                     yaw_source=yaw_source, tilt_source=tilt_source)
+    alignment = Alignment(roll_rad=roll, pitch_rad=pitch, yaw_rad=yaw, gyro_bias_rad_s=gyro_bias,
+                          velocity_ned_m_s=velocity, position_ned_m=position, still_window_s=still_s,
+                          yaw_source=yaw_source, tilt_source=tilt_source)
+    return alignment, mag_rejection
 
 
 def _onboard_euler_at(onboard: pd.DataFrame, time_s: float) -> tuple[float, float, float]:

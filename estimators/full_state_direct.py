@@ -349,10 +349,10 @@ def process_noise(x, ng2, na2, rw_var, R, S, W, Qc):
                 vv += vx[i, k] * vx[j, k]
                 vt += vx[i, k] * S[j, k]
                 tt += S[i, k] * S[j, k]
-            Qc[3 + i, 3 + j] = ng2 * vv + (na2 if i == j else 0.0)
-            Qc[3 + i, 6 + j] = ng2 * vt
-            Qc[6 + j, 3 + i] = ng2 * vt
-            Qc[6 + i, 6 + j] = ng2 * tt
+            Qc[3 + i, 3 + j] += ng2 * vv + (na2 if i == j else 0.0)
+            Qc[3 + i, 6 + j] += ng2 * vt
+            Qc[6 + j, 3 + i] += ng2 * vt
+            Qc[6 + i, 6 + j] += ng2 * tt
 
 
 @njit(cache=True)
@@ -898,7 +898,7 @@ def _assemble(inputs, k: KernelInputs, out_f, out_x, out_sx, diag_f, diag_i, cou
     states = states_frame(o[:, col["time_s"]], o[:, col["roll"]], o[:, col["pitch"]], o[:, col["yaw"]],
                           o[:, col["pn"]:col["pd"] + 1], o[:, col["vn"]:col["vd"] + 1],
                           o[:, col["wn"]:col["we"] + 1], inputs.origin, std=std, navigation=plan.has_gps,
-                          wind=plan.has_airspeed)
+                          wind=plan.has_airspeed, height=plan.has_baro or plan.has_gps)
     diagnostics = diagnostics_frame(diag_f, diag_i, int(counters[C_DIAG]))
     names = [s.name for s in k.table]
     degradations = list(plan.degradations)

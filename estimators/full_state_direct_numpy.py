@@ -206,7 +206,7 @@ def repair(P, min_var, max_var, check_pd):
             scale = math.sqrt(max_var[i] / P[i, i])
             P[i, :] *= scale
             P[:, i] *= scale
-    if not check_pd:
+    if not check_pd or not np.all(np.isfinite(P)):
         return P, False
     try:
         np.linalg.cholesky(P)

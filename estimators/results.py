@@ -94,7 +94,7 @@ class EstimatorRun:
 
 def states_frame(time_s, roll_rad, pitch_rad, yaw_rad, position_ned_m, velocity_ned_m_s, wind_ne_m_s,
                  origin: Origin, *, std: dict[str, np.ndarray] | None = None, navigation: bool = True,
-                 wind: bool = True) -> pd.DataFrame:
+                 wind: bool = True, height: bool = True) -> pd.DataFrame:
     """The states table of one estimator (without the ``estimator`` column).
 
     Parameters
@@ -117,6 +117,8 @@ def states_frame(time_s, roll_rad, pitch_rad, yaw_rad, position_ned_m, velocity_
         False (no GPS): lat/lon and velocities are NaN (altitude is kept).
     wind : bool
         False: wind columns are NaN.
+    height : bool
+        False (neither barometer nor GPS): altitude is NaN.
     """
     time_s = np.asarray(time_s, dtype=float)
     k = len(time_s)
@@ -135,7 +137,7 @@ def states_frame(time_s, roll_rad, pitch_rad, yaw_rad, position_ned_m, velocity_
         "yaw_deg": (np.degrees(yaw_rad) + 180.0) % 360.0 - 180.0,
         "lat_deg": np.asarray(lat, dtype=float).reshape(k),
         "lon_deg": np.asarray(lon, dtype=float).reshape(k),
-        "alt_m": np.asarray(alt, dtype=float).reshape(k),
+        "alt_m": np.asarray(alt, dtype=float).reshape(k) if height else nan,
         "vn_m_s": velocity[:, 0] if navigation else nan,
         "ve_m_s": velocity[:, 1] if navigation else nan,
         "vd_m_s": velocity[:, 2] if navigation else nan,
@@ -145,7 +147,8 @@ def states_frame(time_s, roll_rad, pitch_rad, yaw_rad, position_ned_m, velocity_
     for name, values in (std or {}).items():
         if name not in STD_COLUMNS:
             raise ValueError(f"unknown std column {name!r}")
-        blank = (not navigation and name[:2] in ("po", "vn", "ve", "vd")) or (not wind and name.startswith("wind"))
+        blank = ((not navigation and name[:2] in ("po", "vn", "ve", "vd")) or (not wind and name.startswith("wind"))
+                 or (not height and name.startswith("alt")))
         frame[name] = nan if blank else np.asarray(values, dtype=float).reshape(k)
     # a yaw that wrapped to exactly 180.0 by rounding
     frame["yaw_deg"] = np.where(frame["yaw_deg"] >= 180.0, frame["yaw_deg"] - 360.0, frame["yaw_deg"])
