@@ -1,9 +1,10 @@
 """Calibration segments: a user window, or quiet stretches found automatically (math note 9.3).
 
 * stationary: the IMU sees no rotation and only gravity: the moving average of the gyro vector has norm below
-  ``gyro_max_rad_s`` and that of the specific force has norm within ``accel_tol_m_s2`` of g, for at least
-  ``min_duration_s``. Where GPS or airspeed exist, the median speed must also be below ``max_speed_m_s`` (an
-  unaccelerated straight flight passes the IMU test too).
+  ``gyro_max_rad_s`` and that of the specific force has a constant norm, within ``accel_tol_m_s2`` of its median
+  over the stretch (which itself lies within ``accel_offset_max_m_s2`` of g, allowing for an uncalibrated
+  accelerometer offset along gravity), for at least ``min_duration_s``. Where GPS or airspeed exist, the median
+  speed must also be below ``max_speed_m_s`` (an unaccelerated straight flight passes the IMU test too).
 * steady: cruise with a low angular rate, steady speed (airspeed, else GPS ground speed) above ``min_speed_m_s``
   and a small climb rate (barometer, else GPS altitude), for at least ``min_duration_s``.
 
@@ -64,29 +65,38 @@ class Segment:
 
 @dataclass(frozen=True)
 class StationaryCriteria:
-    """Thresholds of the stationary test (defaults: math note 9.3).
+    """Thresholds of the stationary test.
 
     Attributes
     ----------
     gyro_max_rad_s : float
-        Largest norm of the averaged gyro vector [rad/s].
+        Largest norm of the averaged gyro vector [rad/s] (math note 9.3).
     accel_tol_m_s2 : float
-        Largest | |averaged specific force| - g | [m/s^2].
+        Largest deviation of |averaged specific force| from its median over the stretch [m/s^2] (math note 9.3's
+        0.2, applied around g + the along-gravity offset instead of g).
+    accel_offset_max_m_s2 : float
+        Largest | |averaged specific force| - g | [m/s^2]: admits uncalibrated MPU6050-class zero-g offsets (paper
+        Table 1: up to 80 mg = 0.78 m/s^2), whose along-gravity part the stationary bias estimate measures.
     max_speed_m_s : float
         Largest median GPS ground speed / true airspeed [m/s] (when the log has one).
     min_duration_s : float
         Shortest segment [s].
     smooth_s : float
         Moving-average window applied before the thresholds [s] (keeps sensor noise from breaking runs).
+    trim_s : float
+        Dropped at each end of a run that borders motion [s]: the moving average lets the first moments of a
+        motion through, and a launch or take-off must not leak into the means and the Allan deviation.
     gravity_m_s2 : float
         g used by the test [m/s^2].
     """
 
     gyro_max_rad_s: float = 0.05
     accel_tol_m_s2: float = 0.2
+    accel_offset_max_m_s2: float = 1.0
     max_speed_m_s: float = 1.0
     min_duration_s: float = 5.0
     smooth_s: float = 0.2
+    trim_s: float = 1.0
     gravity_m_s2: float = STANDARD_GRAVITY_M_S2
 
 
@@ -110,6 +120,8 @@ class SteadyCriteria:
         Moving window of every test [s].
     smooth_s : float
         Moving average applied to the gyro before its RMS over ``window_s`` [s].
+    trim_s : float
+        Dropped at each end of a run that borders a manoeuvre [s] (the windows blur the transitions).
     """
 
     rate_max_rad_s: float = 0.1
@@ -119,6 +131,7 @@ class SteadyCriteria:
     min_duration_s: float = 5.0
     window_s: float = 2.0
     smooth_s: float = 0.2
+    trim_s: float = 1.0
 
 
 #: Default thresholds (frozen, safe to share as argument defaults).
@@ -153,14 +166,20 @@ def find_stationary_segments(log: FlightLog, criteria: StationaryCriteria = DEFA
     window = _window_samples(time_s, criteria.smooth_s)
     gyro = uniform_filter1d(imu[list(GYRO_COLUMNS)].to_numpy(dtype=float), window, axis=0, mode="nearest")
     accel = uniform_filter1d(imu[list(ACCEL_COLUMNS)].to_numpy(dtype=float), window, axis=0, mode="nearest")
-    still = ((np.linalg.norm(gyro, axis=1) < criteria.gyro_max_rad_s)
-             & (np.abs(np.linalg.norm(accel, axis=1) - criteria.gravity_m_s2) < criteria.accel_tol_m_s2))
+    norm_f = np.linalg.norm(accel, axis=1)
+    coarse = ((np.linalg.norm(gyro, axis=1) < criteria.gyro_max_rad_s)
+              & (np.abs(norm_f - criteria.gravity_m_s2) < criteria.accel_offset_max_m_s2))
+    still = np.zeros_like(coarse)
+    for a, b in _run_bounds(time_s, coarse):
+        # Gravity-only means a constant |f| = g + the along-gravity offset: its median over the stretch.
+        still[a:b + 1] = np.abs(norm_f[a:b + 1] - np.median(norm_f[a:b + 1])) < criteria.accel_tol_m_s2
     speed = _speed_source(log, prefer="gps")
     segments = []
-    for start_s, end_s in _runs(time_s, still, criteria.min_duration_s):
-        reason = (f"stationary: |mean gyro| < {criteria.gyro_max_rad_s:g} rad/s and ||mean f| - g| < "
-                  f"{criteria.accel_tol_m_s2:g} m/s^2 ({criteria.smooth_s:g} s moving average) "
-                  f"for {end_s - start_s:.1f} s")
+    for start_s, end_s in _trimmed(_runs(time_s, still, 0.0), time_s, criteria.trim_s, criteria.min_duration_s):
+        reason = (f"stationary: |mean gyro| < {criteria.gyro_max_rad_s:g} rad/s and |mean f| within "
+                  f"{criteria.accel_tol_m_s2:g} m/s^2 of its median (itself within "
+                  f"{criteria.accel_offset_max_m_s2:g} m/s^2 of g; {criteria.smooth_s:g} s moving averages) for "
+                  f"{end_s - start_s:.1f} s (ends next to motion trimmed by {criteria.trim_s:g} s)")
         if speed is None:
             reason += "; no GPS or airspeed to confirm zero speed"
         else:
@@ -210,9 +229,11 @@ def find_steady_segments(log: FlightLog, criteria: SteadyCriteria = DEFAULT_STEA
 
     reason = (f"steady: RMS gyro < {criteria.rate_max_rad_s:g} rad/s, {speed_name} std < "
               f"{criteria.speed_std_max_m_s:g} m/s and mean > {criteria.min_speed_m_s:g} m/s, |climb rate from "
-              f"{altitude_name}| < {criteria.climb_max_m_s:g} m/s ({criteria.window_s:g} s windows)")
+              f"{altitude_name}| < {criteria.climb_max_m_s:g} m/s ({criteria.window_s:g} s windows, ends next to "
+              f"manoeuvres trimmed by {criteria.trim_s:g} s)")
+    kept = _trimmed(intervals, imu_time_s, criteria.trim_s, criteria.min_duration_s)
     return sorted((Segment(start_s=a, end_s=b, kind="steady", reason=f"{reason} for {b - a:.1f} s")
-                   for a, b in intervals if b - a >= criteria.min_duration_s), key=lambda s: -s.duration_s)
+                   for a, b in kept), key=lambda s: -s.duration_s)
 
 
 def auto_segments(log: FlightLog, stationary: StationaryCriteria = DEFAULT_STATIONARY,
@@ -264,8 +285,8 @@ def _altitude_source(log: FlightLog) -> tuple[str, pd.Series] | None:
     return None
 
 
-def _runs(time_s: np.ndarray, mask: np.ndarray, min_duration_s: float) -> list[Interval]:
-    """(start, end) times of maximal runs of True in ``mask`` not crossing a stream gap, >= ``min_duration_s``."""
+def _run_bounds(time_s: np.ndarray, mask: np.ndarray) -> list[tuple[int, int]]:
+    """(first, last) indices of maximal runs of True in ``mask`` that do not cross a stream gap."""
     n = len(time_s)
     if n == 0:
         return []
@@ -274,8 +295,26 @@ def _runs(time_s: np.ndarray, mask: np.ndarray, min_duration_s: float) -> list[I
     linked = mask[:-1] & mask[1:] & ~gap
     starts = np.flatnonzero(mask & np.r_[True, ~linked])
     ends = np.flatnonzero(mask & np.r_[~linked, True])
-    return [(float(time_s[a]), float(time_s[b])) for a, b in zip(starts, ends, strict=True)
-            if time_s[b] - time_s[a] >= min_duration_s and b > a]
+    return [(int(a), int(b)) for a, b in zip(starts, ends, strict=True)]
+
+
+def _runs(time_s: np.ndarray, mask: np.ndarray, min_duration_s: float) -> list[Interval]:
+    """(start, end) times of the runs of :func:`_run_bounds` lasting at least ``min_duration_s`` (and > 0)."""
+    return [(float(time_s[a]), float(time_s[b])) for a, b in _run_bounds(time_s, mask)
+            if b > a and time_s[b] - time_s[a] >= min_duration_s]
+
+
+def _trimmed(intervals: list[Interval], time_s: np.ndarray, trim_s: float, min_duration_s: float
+             ) -> list[Interval]:
+    """Intervals shortened by ``trim_s`` at every end that is not within ``trim_s`` of the start or end of the
+    record (streams end a sample apart), then kept when at least ``min_duration_s`` long."""
+    out = []
+    for a, b in intervals:
+        a = a + trim_s if a > time_s[0] + trim_s else a
+        b = b - trim_s if b < time_s[-1] - trim_s else b
+        if b - a >= min_duration_s:
+            out.append((a, b))
+    return out
 
 
 def _intersect(a: list[Interval], b: list[Interval]) -> list[Interval]:

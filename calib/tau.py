@@ -125,7 +125,7 @@ def choose_tau(replay: Callable[[float], Innovations], method: str = "likelihood
     Returns
     -------
     TauSelection
-        With the grid curves; when the NIS root is not bracketed by the bounds, the bound with the mean NIS
+        With the grid curves; when the NIS root is not bracketed by the bounds, the grid point with the mean NIS
         closest to 1 and a note.
     """
     if method not in TAU_METHODS:
@@ -153,9 +153,9 @@ def choose_tau(replay: Callable[[float], Innovations], method: str = "likelihood
         if excess_lo * excess_hi <= 0:
             best = float(optimize.brentq(lambda g: mean_nis(run(float(g))) - 1.0, lo, hi, xtol=xatol))
         else:
-            best = lo if abs(excess_lo) < abs(excess_hi) else hi
+            best = float(grid[int(np.argmin(np.abs(np.array(nis_grid) - 1.0)))])
             note = (f"mean NIS - 1 has the same sign at tau = 10^{lo:g} and 10^{hi:g}: no root in the bounds, "
-                    f"the bound closer to 1 is used")
+                    f"the grid point with the mean NIS closest to 1 is used")
 
     innovations = run(best)
     nu, s = _checked(innovations)

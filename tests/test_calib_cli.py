@@ -45,8 +45,20 @@ def test_user_window_filter_and_tau(real_logs_dir, tmp_path):
     assert cal.stationary_bias is not None  # the window lies inside the stationary stretch
 
 
+def test_auto_tau_replays_the_three_stage_estimator(real_logs_dir, tmp_path, capsys):
+    out = tmp_path / "CALIB.json"
+    assert main(["calibrate", str(real_logs_dir / LOG), "--tau", "auto", "-o", str(out)]) == 0
+    assert "(likelihood)" in capsys.readouterr().out
+    tau = read_calibration(out).tau
+    assert tau.method == "likelihood" and 0.1 <= tau.tau <= 100.0
+    assert len(tau.log10_tau_grid) == len(tau.neg_log_likelihood) == len(tau.mean_nis) == 13
+    assert tau.n_innovations > 1000  # stage-1 updates at 50 Hz over the 31 s log
+    # The bounded search lands in the basin of the display grid's best point (grid step 0.25 in log10 tau).
+    best_on_grid = tau.log10_tau_grid[int(np.argmin(tau.neg_log_likelihood))]
+    assert abs(np.log10(tau.tau) - best_on_grid) <= 0.25
+
+
 @pytest.mark.parametrize(("extra", "message"), [
-    (["--tau", "auto"], "automatic tau needs the estimators' replay"),
     (["--tau", "big"], "positive number or 'auto'"),
     (["--start-s", "1710773352"], "go together"),
     (["--start-s", "1", "--end-s", "2"], "outside the log"),

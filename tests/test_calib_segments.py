@@ -12,18 +12,20 @@ from ingest.errors import InputError
 # The synthetic log runs 100 .. 160 s; the vehicle rocks at 0.8 rad/s in 120 .. 130 s.
 MOTION = ((120.0, 130.0),)
 # The 0.2 s moving average widens the motion by up to 0.1 s on both sides, and the rocking rate
-# 0.8 sin(pi t) stays below 0.05 rad/s for |t - k| < 0.02 s: edges within 0.15 s.
+# 0.8 sin(pi t) stays below 0.05 rad/s for |t - k| < 0.02 s: edges within 0.15 s, then moved 1 s away from the
+# motion by the trim (StationaryCriteria.trim_s); the log's own start and end are not trimmed.
 EDGE_TOL_S = 0.15
+TRIM_S = 1.0
 
 
 def test_stationary_segments_split_by_motion_longest_first():
     segments = find_stationary_segments(synthetic_log(60.0, motion=MOTION))
     assert [s.kind for s in segments] == ["stationary", "stationary"]
     longest, other = segments
-    assert longest.start_s == pytest.approx(130.0, abs=EDGE_TOL_S)
-    assert longest.end_s == pytest.approx(160.0 - 1 / 250, abs=EDGE_TOL_S)
-    assert other.start_s == pytest.approx(100.0, abs=EDGE_TOL_S)
-    assert other.end_s == pytest.approx(120.0, abs=EDGE_TOL_S)
+    assert longest.start_s == pytest.approx(130.0 + TRIM_S, abs=EDGE_TOL_S)
+    assert longest.end_s == pytest.approx(160.0 - 1 / 250, abs=1e-9)
+    assert other.start_s == pytest.approx(100.0, abs=1e-9)
+    assert other.end_s == pytest.approx(120.0 - TRIM_S, abs=EDGE_TOL_S)
     assert "stationary" in longest.reason and "median GPS ground speed" in longest.reason
 
 
@@ -39,8 +41,9 @@ def test_unaccelerated_flight_is_steady_not_stationary():
     assert find_stationary_segments(log) == []
     steady = find_steady_segments(log)
     assert [s.kind for s in steady] == ["steady", "steady"]
-    # Rate windows of 2 s (+-1 s) plus the speed/altitude tests: the longest steady stretch is 130 .. 160 s.
-    assert steady[0].start_s == pytest.approx(130.0, abs=1.1)
+    # The 2 s RMS window blurs the motion edge by up to 1 s, the trim adds 1 s: the longest steady stretch
+    # starts in 131 .. 132 s and runs to the end of the log (untrimmed).
+    assert 131.0 - EDGE_TOL_S <= steady[0].start_s <= 132.0 + EDGE_TOL_S
     assert steady[0].end_s == pytest.approx(160.0, abs=0.2)
     assert "true airspeed" in steady[0].reason and "barometric altitude" in steady[0].reason
 

@@ -1,21 +1,29 @@
 """``solarnav calibrate LOG [--start-s A --end-s B | --segment auto] [--cutoff-hz F] [--numtaps N] [--tau X|auto]
-[--noise sigma|eta] -o CALIB.json [--px4-params OUT.params]``: sensor noise, biases, Allan figures, R and tau from
-a flight log, written as CALIB.json (and optionally as PX4 EKF2 parameters)."""
+[--tau-method likelihood|nis] [--noise sigma|eta] -o CALIB.json [--px4-params OUT.params]``: sensor noise, biases,
+Allan figures, R and tau from a flight log, written as CALIB.json (and optionally as PX4 EKF2 parameters).
+
+``--tau auto`` replays the three-stage estimator (whose stage 1 fuses the accelerometer) once per candidate tau
+with the calibrated noise, and keeps the tau that maximises the likelihood of its body-y accelerometer innovations
+(or brings their mean NIS to 1)."""
 
 from __future__ import annotations
 
 import argparse
+from collections.abc import Callable
 
 import numpy as np
 
 from calib.bias import STANDARD_GRAVITY, GravityReference
-from calib.calibration import IMU_SENSORS, NOISE_CHOICES, Calibration, FirSettings, calibrate
+from calib.calibration import IMU_SENSORS, NOISE_CHOICES, Calibration, FirSettings, calibrate, with_tau
 from calib.export import write_calibration
 from calib.px4_params import DEFAULT_PREDICT_PERIOD_S, px4_parameters, write_px4_params
 from calib.segments import user_segment
 from calib.tables import table4
-from calib.tau import DEFAULT_TAU, TauSelection, user_tau
+from calib.tau import DEFAULT_TAU, TAU_METHODS, Innovations, TauSelection, choose_tau, user_tau
+from estimators import three_stage
+from estimators.config import config_from_calibration
 from estimators.environment import local_gravity_m_s2
+from estimators.events import build_replay_inputs
 from ingest.errors import InputError
 from ingest.flightlog import FlightLog
 from ingest.ulog_reader import load_flight_log
@@ -37,6 +45,8 @@ def add_parser(subparsers) -> None:
     parser.add_argument("--tau", metavar="X|auto",
                         help="eq 52 penalty on the accelerometer's y variance: a number, or 'auto' (chosen by "
                              "replaying the estimator; default 1)")
+    parser.add_argument("--tau-method", choices=TAU_METHODS, default="likelihood",
+                        help="criterion of --tau auto: innovation likelihood (default) or mean NIS = 1")
     parser.add_argument("--noise", choices=NOISE_CHOICES, default="sigma",
                         help="figure R is built from: residual sigma (default) or the paper's eq 50 eta")
     parser.add_argument("-o", "--output", required=True, metavar="CALIB.json", help="calibration file to write")
@@ -49,8 +59,10 @@ def run(args: argparse.Namespace) -> int:
     _check_segment_options(args)
     log = load_flight_log(args.log)
     segment = None if args.start_s is None else user_segment(log, args.start_s, args.end_s)
-    cal = calibrate(log, segment=segment, fir=_imu_filter(args), noise=args.noise, tau=tau,
+    cal = calibrate(log, segment=segment, fir=_imu_filter(args), noise=args.noise, tau=tau or DEFAULT_TAU,
                     gravity=local_gravity(log))
+    if tau is None:
+        cal = with_tau(cal, choose_tau(tau_replay(log, cal), method=args.tau_method))
     try:
         written = [write_calibration(cal, args.output)]
         if args.px4_params:
@@ -79,9 +91,33 @@ def local_gravity(log: FlightLog) -> GravityReference:
                             f"WGS-84 normal gravity at the median GPS fix ({lat_deg:.4f} deg, {alt_m:.0f} m)")
 
 
+def tau_replay(log: FlightLog, cal: Calibration) -> Callable[[float], Innovations]:
+    """``tau -> Innovations`` of the three-stage estimator's body-y accelerometer updates (every update, gated or
+    not) on ``log`` with the noise of ``cal``: the replay :func:`calib.tau.choose_tau` needs."""
+    config = config_from_calibration(cal)
+    inputs = build_replay_inputs(log, config)
+
+    def replay(tau: float) -> Innovations:
+        run = three_stage.run(log, inputs, config, options=three_stage.ThreeStageOptions(accel_tau=tau))
+        diagnostics = run.diagnostics
+        rows = diagnostics[(diagnostics["sensor"] == "accel") & (diagnostics["component"] == "y")]
+        if rows.empty:
+            raise InputError("the three-stage replay made no accelerometer update: tau cannot be chosen "
+                             "automatically; give a number", source=log.meta.source, field="--tau")
+        return Innovations(rows["innovation"].to_numpy(dtype=float), rows["innovation_var"].to_numpy(dtype=float))
+
+    return replay
+
+
 def format_summary(cal: Calibration) -> str:
     """Segments per sensor, the Table-4 layout, R diagonals, bias and warnings as text."""
-    lines = [f"{cal.source}: noise '{cal.noise}', tau {cal.tau.tau:g} ({cal.tau.method})", "", "segments:"]
+    lines = [f"{cal.source}: noise '{cal.noise}', tau {cal.tau.tau:.3g} ({cal.tau.method})"]
+    if cal.tau.log10_tau_grid:
+        lines.append(f"  tau curve over log10 tau {cal.tau.log10_tau_grid[0]:g} .. {cal.tau.log10_tau_grid[-1]:g}: "
+                     f"mean NIS at tau {cal.tau.nis_at_tau:.3g} (95 % band {cal.tau.nis_band[0]:.3g} .. "
+                     f"{cal.tau.nis_band[1]:.3g}), lag-1 autocorrelation {cal.tau.lag1_autocorrelation:.2f}"
+                     + (f"; {cal.tau.note}" if cal.tau.note else ""))
+    lines += ["", "segments:"]
     for name, s in cal.sensors.items():
         lines.append(f"  {name:<14} {s.segment.start_s:.2f} .. {s.segment.end_s:.2f} s ({s.segment.kind}), "
                      f"{s.fir.fs_hz:.1f} Hz, FIR {s.fir.cutoff_hz:.3g} Hz / {s.fir.numtaps} taps")
@@ -119,14 +155,12 @@ def _imu_filter(args: argparse.Namespace) -> dict[str, FirSettings]:
     return dict.fromkeys(IMU_SENSORS, settings)
 
 
-def _tau(text: str | None) -> TauSelection:
+def _tau(text: str | None) -> TauSelection | None:
+    """The user's tau, the default (no option) or None for ``auto``."""
     if text is None:
         return DEFAULT_TAU
     if text.strip().lower() == "auto":
-        # Automatic tau replays the estimator once per candidate (calib.tau.choose_tau); the estimators do not
-        # offer a replay function yet, so refuse instead of silently keeping tau = 1.
-        raise InputError("automatic tau needs the estimators' replay, which this version does not provide yet; "
-                         "give a number (e.g. --tau 1)", field="--tau")
+        return None
     try:
         value = float(text)
     except ValueError:
