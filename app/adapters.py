@@ -13,19 +13,20 @@ Every function takes the workspace root as a string so the cache key names the w
 from __future__ import annotations
 
 import hashlib
-import io
 import json
 import tempfile
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 import streamlit as st
 
-from app import samples, tables
+from app import comparison, runs, samples, sun_compare, tables
+from app.comparison import Comparison, gps_origin
 from app.workspace import LogEntry, Workspace
 from calib.calibration import Calibration, FirSettings, allan_curves, calibrate, sensor_samples, with_tau
-from calib.export import calibration_to_dict
+from calib.export import calibration_to_dict, read_calibration
 from calib.fir import design_fir, edge_slice, zero_phase_lowpass
 from calib.px4_params import px4_parameters, write_px4_params
 from calib.segments import (
@@ -39,8 +40,8 @@ from calib.segments import (
 )
 from calib.tau import user_tau
 from estimators.environment import geodetic_to_ned
-from ingest import FlightLog, InputError, SunDevice, load_flight_log
-from ingest.sun_log import with_sun
+from estimators.sun_vector import solve_sun_log
+from ingest import FlightLog, InputError, SunDevice, load_flight_log, load_sun_device, with_sun
 
 #: Bytes per MB in Streamlit's ``server.maxUploadSize``.
 BYTES_PER_MB = 1024 * 1024
@@ -64,35 +65,40 @@ def max_upload_bytes() -> int:
 
 
 @st.cache_resource(max_entries=4, show_spinner="Reading the flight log ...")
-def parsed_log(sha256: str, sun_sha256: str | None, name: str, _ulog, _sun_csv: bytes | None = None) -> FlightLog:
-    """Parse a ULog and attach its sun-device CSV, cached by content hashes, so an upload that was just validated
-    is not parsed again when it is opened from the workspace.
+def parsed_log(sha256: str, sun_sha256: str | None, device_sha256: str | None, name: str, _ulog,
+               _sun_csv: bytes | None = None, _device_json: bytes | None = None) -> FlightLog:
+    """Parse a ULog and attach its sun-device CSV (with its device geometry), cached by the content hashes, so an
+    upload that was just validated is not parsed again when it is opened from the workspace.
 
     Parameters
     ----------
-    sha256, sun_sha256 : str
-        Content hashes of the ULog and of the sun CSV (None without one): the cache key.
+    sha256, sun_sha256, device_sha256 : str
+        Content hashes of the ULog, the sun CSV and the device JSON (None when absent): the cache key.
     name : str
         Display name (sanitised) used in messages.
     _ulog : path or bytes
         The ULog (not hashed).
-    _sun_csv : bytes, optional
-        The sun-device CSV (not hashed).
+    _sun_csv, _device_json : bytes, optional
+        The sun-device CSV and geometry JSON (not hashed).
 
     Raises
     ------
     InputError
-        The file or the CSV cannot be used (pages show it with :func:`app.session.input_errors`).
+        A file cannot be used (pages show it with :func:`app.session.input_errors`).
     """
     log = load_flight_log(_ulog, name=name, max_bytes=max_upload_bytes())
-    return log if _sun_csv is None else with_sun(log, io.BytesIO(_sun_csv), name="sun-device CSV")
+    device = None if _device_json is None else load_sun_device(_device_json, name="sun-device JSON")
+    if _sun_csv is None:
+        if device is not None:
+            raise InputError("a device geometry was given without the sun-device CSV it describes",
+                             source="sun-device JSON")
+        return log
+    return with_sun(log, _sun_csv, device=device, name="sun-device CSV")
 
 
 def validate_upload(content: bytes, name: str, sun_csv: bytes | None, device_json: bytes | None) -> None:
     """Parse an upload before it is stored (the parsed log stays cached); InputError when it is unusable."""
-    parsed_log(_sha256(content), _sha256(sun_csv), name, content, sun_csv)
-    if device_json is not None:
-        sun_device_from_json(device_json)
+    parsed_log(_sha256(content), _sha256(sun_csv), _sha256(device_json), name, content, sun_csv, device_json)
 
 
 def stored_log(root: str, sha256: str) -> FlightLog:
@@ -100,25 +106,10 @@ def stored_log(root: str, sha256: str) -> FlightLog:
     workspace = open_workspace(root)
     entry = workspace.get_log(sha256)
     directory = workspace.log_dir(sha256)
-    sun_path = directory / "sun.csv"
-    sun_csv = sun_path.read_bytes() if sun_path.exists() else None
-    return parsed_log(sha256, _sha256(sun_csv), entry.display_name if entry else sha256[:12], directory / "log.ulg",
-                      sun_csv)
-
-
-def stored_device(root: str, sha256: str) -> SunDevice:
-    """The sun-device geometry stored with a log (``device.json``), else the default device."""
-    path = open_workspace(root).log_dir(sha256) / "device.json"
-    return sun_device_from_json(path.read_bytes()) if path.exists() else SunDevice()
-
-
-def sun_device_from_json(content: bytes) -> SunDevice:
-    """A :class:`~ingest.sun_device.SunDevice` from its JSON (keys: its field names); InputError when invalid."""
-    try:
-        data = json.loads(content)
-        return SunDevice(**{key: tuple(value) if isinstance(value, list) else value for key, value in data.items()})
-    except (ValueError, TypeError, AttributeError) as exc:
-        raise InputError(f"not a sun-device geometry ({exc})", source="device JSON") from exc
+    sun_csv, device_json = (path.read_bytes() if path.exists() else None
+                            for path in (directory / "sun.csv", directory / "device.json"))
+    return parsed_log(sha256, _sha256(sun_csv), _sha256(device_json), entry.display_name if entry else sha256[:12],
+                      directory / "log.ulg", sun_csv, device_json)
 
 
 def _sha256(content: bytes | None) -> str | None:
@@ -137,14 +128,11 @@ def tracks_ned(root: str, sha256: str) -> dict[str, pd.DataFrame]:
     """
     log = stored_log(root, sha256)
     out: dict[str, pd.DataFrame] = {}
-    origin = None
-    if log.has("gps"):
-        gps = log["gps"].dropna(subset=["lat_deg", "lon_deg", "alt_m"])
-        if len(gps):
-            origin = tuple(float(v) for v in gps[["lat_deg", "lon_deg", "alt_m"]].iloc[0])
-            out["GPS"] = _geodetic_track(gps, origin)
-    for label, prefix in (("onboard", "onboard"), ("truth", "truth")):
-        global_name, local_name = f"{prefix}_global_position", f"{prefix}_local_position"
+    origin = gps_origin(log)
+    if origin is not None:
+        out["GPS"] = _geodetic_track(log["gps"].dropna(subset=["lat_deg", "lon_deg", "alt_m"]), origin)
+    for label in ("onboard", "truth"):
+        global_name, local_name = f"{label}_global_position", f"{label}_local_position"
         if origin is not None and log.has(global_name):
             out[label] = _geodetic_track(log[global_name].dropna(subset=["lat_deg", "lon_deg"]), origin)
         elif log.has(local_name):
@@ -253,3 +241,88 @@ def calibration_files(cal: Calibration) -> tuple[str, str]:
                                        header=f"EKF2 noise from solarnav calibration of {cal.source}")
         params_text = params_path.read_text()
     return json.dumps(calibration_to_dict(cal), indent=2, allow_nan=False) + "\n", params_text
+
+
+# ---------------------------------------------------------------------------------------------------- estimators
+@st.cache_resource(max_entries=4, show_spinner="Loading the estimator run ...")
+def stored_run(root: str, run_id: str) -> tuple[pd.DataFrame, pd.DataFrame, dict]:
+    """States, diagnostics and report of a stored run (a resource: large, read-only, never pickled per rerun)."""
+    return open_workspace(root).load_run(run_id)
+
+
+@st.cache_resource(max_entries=4, show_spinner="Comparing with the reference ...")
+def run_comparison(root: str, sha256: str, run_id: str) -> Comparison:
+    """The run's estimators against the log's reference (:func:`app.comparison.compare`)."""
+    return comparison.compare(stored_run(root, run_id)[0], stored_log(root, sha256))
+
+
+@st.cache_data(max_entries=16, show_spinner=False)
+def rms_table(root: str, sha256: str, run_id: str) -> pd.DataFrame:
+    """RMS errors in the layout of the paper's Table 2 (empty without a reference)."""
+    return comparison.rms_table(run_comparison(root, sha256, run_id).errors)
+
+
+@st.cache_data(max_entries=16, show_spinner=False)
+def nis_summary(root: str, run_id: str) -> pd.DataFrame:
+    """Per estimator and sensor: updates, accepted share, mean NIS, share inside the 95 % bound."""
+    return comparison.nis_summary(stored_run(root, run_id)[1])
+
+
+@st.cache_data(max_entries=16, show_spinner=False)
+def moving_nis(root: str, run_id: str, estimator: str, sensor: str, window: int) -> pd.DataFrame:
+    """Moving mean NIS of one estimator's sensor (:func:`app.comparison.moving_nis`)."""
+    return comparison.moving_nis(sensor_diagnostics(root, run_id, estimator, sensor), window)
+
+
+def sensor_diagnostics(root: str, run_id: str, estimator: str, sensor: str) -> pd.DataFrame:
+    """Diagnostics rows of one estimator and sensor of a stored run."""
+    diagnostics = stored_run(root, run_id)[1]
+    keep = (diagnostics["estimator"].astype(str) == estimator) & (diagnostics["sensor"].astype(str) == sensor)
+    return diagnostics.loc[keep]
+
+
+def run_calibration(root: str, sha256: str, noise: str) -> Calibration | None:
+    """The calibration a run's ``noise`` setting names: None for the default noise, the automatic calibration of
+    the log, or a calibration saved in the workspace."""
+    if noise == runs.DEFAULT_NOISE:
+        return None
+    if noise == runs.AUTO_CALIBRATION:
+        return calibration(root, sha256, None, (), "sigma")
+    return read_calibration(open_workspace(root).calibration_path(noise))
+
+
+def run_file(root: str, run_id: str, table: str, suffix: str) -> Callable[[], bytes]:
+    """A callable producing a stored run's ``states`` / ``diagnostics`` as Parquet or CSV bytes, for a lazy
+    download button (nothing is converted until the user clicks)."""
+    def produce() -> bytes:
+        path = open_workspace(root).root / "runs" / run_id / f"{table}.parquet"
+        return path.read_bytes() if suffix == "parquet" else pd.read_parquet(path).to_csv(index=False).encode()
+
+    return produce
+
+
+# ---------------------------------------------------------------------------------------------------- sun vector
+@st.cache_data(max_entries=8, show_spinner="Solving the sun vector ...")
+def sun_solution(root: str, sha256: str) -> pd.DataFrame:
+    """:func:`estimators.sun_vector.solve_sun_log` of the log's photocell currents with its device geometry."""
+    log = stored_log(root, sha256)
+    return solve_sun_log(log["sun"], device=log.meta.sun_device or SunDevice())
+
+
+@st.cache_data(max_entries=8, show_spinner="Predicting the sun direction ...")
+def sun_prediction(root: str, sha256: str, attitude_source: str) -> pd.DataFrame:
+    """Solved and predicted body-frame sun azimuth / elevation [deg] and their angle [deg] per solver epoch.
+
+    Columns: ``time_s``, ``solved_azimuth_deg``, ``solved_elevation_deg``, ``predicted_azimuth_deg``,
+    ``predicted_elevation_deg``, ``error_deg``.
+    """
+    log = stored_log(root, sha256)
+    solution = sun_solution(root, sha256)
+    time_s = solution["time_s"].to_numpy(float)
+    solved = solution[["sun_x", "sun_y", "sun_z"]].to_numpy(float)
+    predicted = sun_compare.predicted_sun_body(log, attitude_source, time_s, gps_origin(log))
+    solved_az, solved_el = sun_compare.body_angles_deg(solved)
+    predicted_az, predicted_el = sun_compare.body_angles_deg(predicted)
+    return pd.DataFrame({"time_s": time_s, "solved_azimuth_deg": solved_az, "solved_elevation_deg": solved_el,
+                         "predicted_azimuth_deg": predicted_az, "predicted_elevation_deg": predicted_el,
+                         "error_deg": sun_compare.angle_between_deg(solved, predicted)})

@@ -11,8 +11,9 @@ from app import adapters, session
 st.set_page_config(page_title="solarnav", page_icon=":sunny:", layout="wide")
 
 samples = adapters.bundled_logs(session.root())
+main_sample = max(samples, key=lambda entry: entry.size_bytes, default=None)  # the full mission opens first
 st.sidebar.title("solarnav")
-session.log_picker(session.workspace().list_logs(), samples[0].sha256 if samples else None)
+session.log_picker(session.workspace().list_logs(), main_sample.sha256 if main_sample else None)
 st.sidebar.caption(f"Workspace: `{session.root()}`")
 
 pages = [

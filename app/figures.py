@@ -6,7 +6,7 @@ points, so a 1-hour 250 Hz log draws as fast as a short one; every axis title ca
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 
 import numpy as np
 import pandas as pd
@@ -125,7 +125,7 @@ def track_figure(tracks: Mapping[str, pd.DataFrame], max_points: int = MAX_POINT
 # ---------------------------------------------------------------------------------------------------- calibration
 SEGMENT_COLORS = {"stationary": "rgba(44,160,44,0.15)", "steady": "rgba(31,119,180,0.15)",
                   "user": "rgba(214,39,40,0.18)"}
-AXIS_COLORS = ("#1f77b4", "#ff7f0e", "#2ca02c")
+AXIS_COLORS = ("#1f77b4", "#ff7f0e", "#2ca02c", "#9467bd", "#8c564b", "#e377c2", "#17becf")
 
 
 def segment_figure(imu_norms: pd.DataFrame, segments: pd.DataFrame, max_points: int = MAX_POINTS) -> go.Figure:
@@ -239,4 +239,124 @@ def tau_curve_figure(log10_tau_grid, neg_log_likelihood, mean_nis, chosen_tau: f
                 title="Automatic tau (accelerometer y innovations)")
     fig.update_yaxes(title_text="mean NIS [-]", secondary_y=True)
     fig.update_xaxes(type="log")
+    return fig
+
+
+# ---------------------------------------------------------------------------------------------------- estimators
+#: Line style per reference source (estimators are solid).
+REFERENCE_DASH = {"truth": "dash", "onboard": "dot"}
+
+
+def quantity_figure(frames: Mapping[str, pd.DataFrame], rows: Sequence[tuple[str, str]], *, title: str,
+                    max_points: int = MAX_POINTS) -> go.Figure:
+    """One row per quantity, one downsampled line per source (estimators, onboard, truth).
+
+    Parameters
+    ----------
+    frames : mapping of source -> pandas.DataFrame
+        Each with ``time_s`` [s] and the row columns (missing or all-NaN columns are skipped).
+    rows : sequence of (column, axis title with unit)
+        Quantities to draw, top to bottom.
+    """
+    fig = make_subplots(rows=len(rows), cols=1, shared_xaxes=True, vertical_spacing=0.03)
+    for source, frame in frames.items():
+        time_s = frame["time_s"].to_numpy(float)
+        for row, (column, _) in enumerate(rows, start=1):
+            if column not in frame or not frame[column].notna().any():
+                continue
+            trace = line(time_s, frame[column].to_numpy(float), source, max_points=max_points,
+                         legendgroup=source, showlegend=not any(t.name == source for t in fig.data))
+            trace.line.dash = REFERENCE_DASH.get(source)
+            fig.add_trace(trace, row=row, col=1)
+    base_layout(fig, y_title="", height=90 + 170 * len(rows), title=title)
+    for row, (_, axis_title) in enumerate(rows, start=1):
+        fig.update_yaxes(title_text=axis_title, row=row, col=1)
+    fig.update_xaxes(title_text="")
+    fig.update_xaxes(title_text=TIME_TITLE, row=len(rows), col=1)
+    return fig
+
+
+def innovation_figure(diagnostics: pd.DataFrame, units: Mapping[str, str], *, title: str,
+                      max_points: int = MAX_POINTS) -> go.Figure:
+    """Innovations of one estimator's sensor, one row per component, with the +-2 sqrt(S) envelope (95 % for a
+    consistent filter) and the rejected updates marked.
+
+    Parameters
+    ----------
+    diagnostics : pandas.DataFrame
+        Rows of one estimator and sensor: ``time_s``, ``component``, ``innovation``, ``innovation_var``,
+        ``accepted``.
+    units : mapping of component -> str
+        Unit of each component's innovation.
+    """
+    components = list(dict.fromkeys(diagnostics["component"].astype(str)))
+    fig = make_subplots(rows=max(1, len(components)), cols=1, shared_xaxes=True, vertical_spacing=0.04)
+    for row, component in enumerate(components, start=1):
+        part = diagnostics.loc[diagnostics["component"].astype(str) == component]
+        time_s = part["time_s"].to_numpy(float)
+        bound = 2.0 * np.sqrt(part["innovation_var"].to_numpy(float))
+        first = row == 1
+        fig.add_trace(line(time_s, bound, "+2 sqrt(S)", max_points=max_points, color="#bbbbbb",
+                           legendgroup="bound", showlegend=first), row=row, col=1)
+        fig.add_trace(line(time_s, -bound, "-2 sqrt(S)", max_points=max_points, color="#bbbbbb",
+                           legendgroup="bound", showlegend=False), row=row, col=1)
+        fig.add_trace(line(time_s, part["innovation"].to_numpy(float), "innovation", max_points=max_points,
+                           color="#1f77b4", legendgroup="innovation", showlegend=first), row=row, col=1)
+        rejected = part.loc[~part["accepted"].astype(bool)]
+        if len(rejected):
+            step = max(1, int(np.ceil(len(rejected) / max_points)))
+            fig.add_trace(go.Scatter(x=rejected["time_s"].iloc[::step], y=rejected["innovation"].iloc[::step],
+                                     mode="markers", name="rejected", legendgroup="rejected",
+                                     showlegend=not any(t.name == "rejected" for t in fig.data),
+                                     marker={"color": "#d62728", "symbol": "x", "size": 5}), row=row, col=1)
+    base_layout(fig, y_title="", height=90 + 160 * max(1, len(components)), title=title)
+    for row, component in enumerate(components, start=1):
+        fig.update_yaxes(title_text=f"{component} [{units.get(component, '-')}]", row=row, col=1)
+    fig.update_xaxes(title_text="")
+    fig.update_xaxes(title_text=TIME_TITLE, row=max(1, len(components)), col=1)
+    return fig
+
+
+def nis_figure(moving: pd.DataFrame, window: int, band: tuple[float, float], *, title: str,
+               max_points: int = MAX_POINTS) -> go.Figure:
+    """Moving mean NIS per component with its chi-square band (``moving``: ``time_s``, ``component``,
+    ``mean_nis``; ``band``: 95 % bounds of the mean of ``window`` NIS values)."""
+    fig = go.Figure()
+    for k, (component, part) in enumerate(moving.groupby("component", sort=False)):
+        fig.add_trace(line(part["time_s"].to_numpy(float), part["mean_nis"].to_numpy(float), str(component),
+                           max_points=max_points, color=AXIS_COLORS[k % len(AXIS_COLORS)]))
+    fig.add_hrect(y0=band[0], y1=band[1], fillcolor="rgba(44,160,44,0.15)", line_width=0, layer="below")
+    fig.add_hline(y=1.0, line_dash="dash", line_color="#2ca02c",
+                  annotation_text=f"95 % chi-square band for {window} updates", annotation_position="top left")
+    base_layout(fig, y_title=f"mean NIS over {window} updates [-]", height=320, title=title)
+    fig.update_yaxes(type="log")
+    return fig
+
+
+# ---------------------------------------------------------------------------------------------------- sun vector
+#: Colours of the cell states dark / lit / faulty (codes 0, 1, 2 of :mod:`app.sun_compare`).
+CELL_STATE_COLORS = ("#e8e8e8", "#f2b705", "#d62728")
+
+
+def cell_state_figure(time_s: np.ndarray, states: np.ndarray, names: Sequence[str],
+                      max_columns: int = MAX_POINTS) -> go.Figure:
+    """Heat map of every cell's state over time (``states``: shape (n, cells), codes 0..2 named by ``names``).
+
+    Long logs are reduced to ``max_columns`` time bins keeping each bin's highest code, so a short fault stays
+    visible."""
+    time_s, states = np.asarray(time_s, float), np.asarray(states)
+    step = max(1, int(np.ceil(len(time_s) / max_columns)))
+    n_bins = int(np.ceil(len(time_s) / step))
+    padded = np.full((n_bins * step, states.shape[1]), -1)
+    padded[: len(states)] = states
+    binned = padded.reshape(n_bins, step, states.shape[1]).max(axis=1)
+    n_codes = len(CELL_STATE_COLORS)
+    scale = [[edge / n_codes, color] for k, color in enumerate(CELL_STATE_COLORS) for edge in (k, k + 1)]
+    fig = go.Figure(go.Heatmap(
+        x=time_s[::step], y=[f"cell {k + 1}" for k in range(states.shape[1])], z=binned.T, zmin=-0.5,
+        zmax=n_codes - 0.5, colorscale=scale, hovertemplate="%{y} at %{x:.1f} s: %{customdata}<extra></extra>",
+        customdata=np.asarray(names, dtype=object)[np.clip(binned.T, 0, n_codes - 1)],
+        colorbar={"tickvals": list(range(n_codes)), "ticktext": list(names), "title": {"text": "state"}}))
+    base_layout(fig, y_title="photocell", height=300, title="Cells over time")
+    fig.update_layout(hovermode="closest")
     return fig

@@ -1,8 +1,8 @@
 """Bundled sample logs: find them in ``sample_logs/`` and add them to a workspace on first start.
 
-A sample is a ``.ulg`` file plus, optionally, a sun-device CSV and a device JSON whose names start with the ULog's
-stem (``mission.ulg``, ``mission_sun.csv``, ``mission_device.json``). No Streamlit here: the ``dashboard`` command
-and the app's entrypoint both call :func:`add_samples`.
+A sample is a ``.ulg`` file plus, optionally, a sun-device CSV and a device JSON named after the ULog's stem
+(``paper.ulg``, ``paper_sun.csv``, ``paper_device.json``; other files such as ``paper_sim.json`` are ignored).
+No Streamlit here: the ``dashboard`` command and the app's entrypoint both call :func:`add_samples`.
 """
 
 from __future__ import annotations
@@ -36,23 +36,16 @@ class SampleLog:
 
 
 def find_samples(directory: Path = SAMPLE_DIR) -> list[SampleLog]:
-    """The bundled samples in ``directory``, sorted by file name (empty when the folder is missing).
-
-    Companion files are matched by name prefix: the longest ULog stem a CSV / JSON name starts with wins, so
-    ``mission_failed_cell_sun.csv`` belongs to ``mission_failed_cell.ulg``, not to ``mission.ulg``.
-    """
+    """The bundled samples in ``directory``, sorted by file name (empty when the folder is missing)."""
     if not directory.is_dir():
         return []
-    ulogs = sorted(directory.glob("*.ulg"))
-    stems = sorted((path.stem for path in ulogs), key=len, reverse=True)
 
-    def companion(stem: str, suffix: str) -> Path | None:
-        for path in sorted(directory.glob(f"{stem}*{suffix}")):
-            if next(s for s in stems if path.name.startswith(s)) == stem:
-                return path
-        return None
+    def companion(path: Path) -> Path | None:
+        return path if path.is_file() else None
 
-    return [SampleLog(path, companion(path.stem, ".csv"), companion(path.stem, ".json")) for path in ulogs]
+    return [SampleLog(ulog, companion(ulog.with_name(f"{ulog.stem}_sun.csv")),
+                      companion(ulog.with_name(f"{ulog.stem}_device.json")))
+            for ulog in sorted(directory.glob("*.ulg"))]
 
 
 def add_samples(workspace: Workspace, samples: list[SampleLog] | None = None) -> list[LogEntry]:

@@ -34,6 +34,7 @@ def test_samples_are_added_once_with_their_companions(tmp_path):
     (folder / "mission.ulg").write_bytes(b"ulog A")
     (folder / "mission_sun.csv").write_bytes(b"time_s,i1_mA\n")
     (folder / "mission_device.json").write_bytes(b"{}")
+    (folder / "mission_sim.json").write_bytes(b"{}")  # simulator metadata: not a companion
     (folder / "mission_failed_cell.ulg").write_bytes(b"ulog B")
     (folder / "mission_failed_cell_sun.csv").write_bytes(b"time_s\n")
     found = samples.find_samples(folder)

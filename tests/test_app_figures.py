@@ -128,3 +128,55 @@ def test_allan_and_tau_figures():
                                    (0.8, 1.2))
     assert [trace.name for trace in fig.data] == ["neg. log-likelihood", "mean NIS"]
     assert fig.layout.xaxis.title.text == "tau [-]" and fig.layout.yaxis2.title.text == "mean NIS [-]"
+
+
+def _states(n: int = 90_000, rate_hz: float = 50.0) -> pd.DataFrame:
+    """One estimator's states (the estimators' output columns) over n epochs."""
+    time_s = np.arange(n) / rate_hz
+    return pd.DataFrame({"estimator": "full_state_direct", "time_s": time_s, "roll_deg": np.sin(time_s),
+                         "pitch_deg": np.cos(time_s), "yaw_deg": (time_s * 10.0) % 360.0 - 180.0,
+                         "alt_m": 100.0 + time_s, "vn_m_s": np.full(n, 10.0), "ve_m_s": np.zeros(n),
+                         "vd_m_s": np.zeros(n), "wind_n_m_s": np.ones(n), "wind_e_m_s": np.zeros(n)})
+
+
+def test_quantity_figure_one_row_per_quantity_and_legend_once():
+    states = _states()
+    frames = {"full_state_direct": states, "truth": states.assign(roll_deg=np.nan)}
+    rows = [("roll_deg", "roll [deg]"), ("pitch_deg", "pitch [deg]"), ("yaw_deg", "yaw [deg]")]
+    fig = figures.quantity_figure(frames, rows, title="Attitude")
+    assert [t.name for t in fig.data] == ["full_state_direct"] * 3 + ["truth"] * 2  # truth roll is all NaN
+    assert [t.showlegend for t in fig.data] == [True, False, False, True, False]
+    assert all(len(t.x) <= figures.MAX_POINTS for t in fig.data) and fig.data[3].line.dash == "dash"
+    assert [fig.layout[f"yaxis{k or ''}"].title.text for k in (0, 2, 3)] == [title for _, title in rows]
+    assert fig.layout.xaxis3.title.text == figures.TIME_TITLE
+
+
+def test_innovation_and_nis_figures():
+    n = 30_000
+    diagnostics = pd.DataFrame({
+        "time_s": np.repeat(np.arange(n / 3) / 10.0, 3), "component": np.tile(["n", "e", "d"], n // 3),
+        "innovation": np.random.default_rng(4).normal(size=n), "innovation_var": np.ones(n),
+        "nis": np.random.default_rng(5).chisquare(1, n), "accepted": np.arange(n) % 100 != 0})
+    fig = figures.innovation_figure(diagnostics, {"n": "m", "e": "m", "d": "m"}, title="gps_pos")
+    assert {t.name for t in fig.data} == {"+2 sqrt(S)", "-2 sqrt(S)", "innovation", "rejected"}
+    assert all(len(t.x) <= figures.MAX_POINTS for t in fig.data)
+    assert [fig.layout[f"yaxis{k or ''}"].title.text for k in (0, 2, 3)] == ["n [m]", "e [m]", "d [m]"]
+
+    from app import comparison
+
+    moving = comparison.moving_nis(diagnostics, 50)
+    assert set(moving["component"]) == {"n", "e", "d"} and moving["mean_nis"].between(0.3, 3.0).mean() > 0.95
+    fig = figures.nis_figure(moving, 50, comparison.nis_band(50), title="NIS")
+    assert [t.name for t in fig.data] == ["n", "e", "d"] and fig.layout.yaxis.type == "log"
+    assert fig.layout.yaxis.title.text == "mean NIS over 50 updates [-]"
+
+
+def test_cell_state_figure_keeps_short_faults_when_binning():
+    states = np.zeros((36_000, 7), dtype=int)
+    states[:, 0] = 1
+    states[12_345, 1] = 2  # one faulty epoch
+    fig = figures.cell_state_figure(np.arange(36_000) / 10.0, states, ("dark", "lit", "faulty"), max_columns=1000)
+    heatmap = fig.data[0]
+    assert np.asarray(heatmap.z).shape == (7, 1000) and np.asarray(heatmap.z)[1].max() == 2
+    assert list(heatmap.y) == [f"cell {k}" for k in range(1, 8)]
+    assert fig.layout.yaxis.title.text == "photocell" and fig.layout.xaxis.title.text == figures.TIME_TITLE

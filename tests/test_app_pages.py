@@ -3,6 +3,7 @@ its tables and metrics, and reacts to a widget change; uploads are validated and
 
 from __future__ import annotations
 
+import hashlib
 import json
 from pathlib import Path
 
@@ -14,29 +15,29 @@ from app.workspace import Workspace
 from tests.conftest import REAL_LOGS_DIR, REPO_DIR
 
 ENTRYPOINT = REPO_DIR / "app" / "dashboard.py"
-#: Used when no bundled sample exists yet (the simulator writes them): a SITL log with GPS and ground truth.
-FALLBACK_LOG = REAL_LOGS_DIR / "sample_logging_tagged_and_default_params.ulg"
-TIMEOUT_S = 180
+#: The short bundled scenario (2 min, sun device with a failing cell): fast enough for the heavier pages.
+SHORT_SAMPLE = samples.SAMPLE_DIR / "failed_cell.ulg"
+TIMEOUT_S = 300
 
 
 @pytest.fixture(scope="module")
 def workspace_dir(tmp_path_factory) -> Path:
-    """A workspace holding the bundled samples (added by the app on first start) or the fallback log."""
-    root = tmp_path_factory.mktemp("workspace")
-    if not samples.find_samples():
-        Workspace(root).add_log(FALLBACK_LOG.read_bytes(), FALLBACK_LOG.name)
-    return root
+    """An empty workspace: the app adds the bundled samples on its first start."""
+    return tmp_path_factory.mktemp("workspace")
 
 
 @pytest.fixture
 def open_page(workspace_dir, monkeypatch):
-    """Run the dashboard on ``workspace_dir`` and switch to a page; returns the AppTest."""
+    """Run the dashboard on ``workspace_dir``, optionally open a stored log, and switch to a page."""
     monkeypatch.setenv(session.WORKSPACE_ENV, str(workspace_dir))
 
-    def run(page: str | None = None) -> AppTest:
+    def run(page: str | None = None, log: Path | None = None) -> AppTest:
         at = AppTest.from_file(str(ENTRYPOINT), default_timeout=TIMEOUT_S)
         at.run()
         assert not at.exception
+        if log is not None:
+            at.sidebar.selectbox[0].set_value(hashlib.sha256(log.read_bytes()).hexdigest()).run()
+            assert not at.exception
         if page is not None:
             at.switch_page(page)
             at.run()
@@ -50,9 +51,12 @@ def _chart_traces(at: AppTest, index: int) -> list[dict]:
     return json.loads(at.get("plotly_chart")[index].proto.spec)["data"]
 
 
-def test_home_opens_on_a_stored_log_and_lists_the_workspace(open_page):
+def test_home_opens_on_the_bundled_mission_and_lists_the_workspace(open_page, workspace_dir):
     at = open_page()
-    assert at.sidebar.selectbox[0].value is not None
+    biggest = max(Workspace(workspace_dir).list_logs(), key=lambda entry: entry.size_bytes)
+    assert at.sidebar.selectbox[0].value == biggest.sha256
+    assert {entry.display_name for entry in Workspace(workspace_dir).list_logs()} >= {
+        sample.ulog.name for sample in samples.find_samples()}
     labels = [metric.label for metric in at.metric]
     assert labels == ["Duration", "Vehicle", "Streams", "Estimator runs"]
     table = at.dataframe[0].value
@@ -98,7 +102,7 @@ def _frames(at: AppTest, predicate) -> list:
 
 
 def test_calibration_tables_tau_and_window(open_page):
-    at = open_page("views/calibration.py")
+    at = open_page("views/calibration.py", SHORT_SAMPLE)
     [table4] = _frames(at, lambda v: "Noise (eq 50 eta)" in v.index)
     assert any("Gyroscope (deg/s)" in column for column in table4.columns)
     [noise] = _frames(at, lambda v: "segment_end_s" in v.columns)
@@ -116,3 +120,44 @@ def test_calibration_tables_tau_and_window(open_page):
     assert not at.exception
     [noise] = _frames(at, lambda v: "segment_end_s" in v.columns)
     assert noise["segment_end_s"].max() == pytest.approx(low + 0.6 * (high - low), abs=0.05)
+
+
+def test_estimators_run_compare_and_diagnose(open_page, workspace_dir):
+    at = open_page("views/estimators.py", SHORT_SAMPLE)
+    at.button[0].click()  # "Run estimators" with the defaults: all three, magnetometer heading, default R
+    at.run()
+    assert not at.exception and not at.error
+    sha256 = at.sidebar.selectbox[0].value
+    assert len(Workspace(workspace_dir).list_runs(sha256)) == 1
+    [rms] = _frames(at, lambda v: "Roll Angle (deg)" in v.columns)
+    assert list(rms.index) == ["three_stage", "full_state_direct", "full_state_indirect"]
+    assert list(rms.columns)[-1] == "Wind (m/s)" and rms["Yaw Angle (deg)"].notna().all()
+    [summary] = _frames(at, lambda v: "mean NIS [-]" in v.columns)
+    assert set(summary["estimator"]) == set(rms.index)
+
+    charts = {chart.proto.id: chart for chart in at.get("plotly_chart")}
+    assert len(charts) == 3  # states, innovations, NIS
+    at.segmented_control(key="est_panel").set_value("Errors").run()
+    titles = [json.loads(c.proto.spec)["layout"]["title"]["text"] for c in at.get("plotly_chart")]
+    assert "Errors against the truth" in titles
+    at.selectbox(key="est_diag_estimator").set_value("full_state_direct").run()
+    at.selectbox(key="est_diag_sensor").set_value("gps_vel").run()
+    assert not at.exception
+    innovations = json.loads(at.get("plotly_chart")[1].proto.spec)
+    assert innovations["layout"]["title"]["text"] == "full_state_direct: gps_vel innovations"
+    assert innovations["layout"]["yaxis"]["title"]["text"] == "n [m/s]"
+
+    at.button[0].click()  # the same settings again: the stored run is shown, not recomputed
+    at.run()
+    assert len(Workspace(workspace_dir).list_runs(sha256)) == 1
+    assert any("stored already" in info.value for info in at.info)
+
+
+def test_sun_page_shows_cells_and_prediction(open_page):
+    at = open_page("views/sun.py", SHORT_SAMPLE)
+    metrics = {metric.label: metric.value for metric in at.metric}
+    assert metrics["Solved"].endswith("%") and metrics["Most often faulty"] == "cell 2"
+    assert float(metrics["Median angle error"].split()[0]) < 5.0
+    [shares] = _frames(at, lambda v: "faulty [%]" in v.index)
+    assert shares.loc["faulty [%]", "cell 2"] > 10.0
+    assert at.radio(key="sun_attitude").value == "truth"

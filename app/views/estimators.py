@@ -1,8 +1,132 @@
-"""estimators page (being wired to the library)."""
+"""Estimators: run the three EKFs (choice of estimators, heading aid, noise) with progress, and compare them with
+the onboard estimate and the ground truth: states, errors, the RMS table (paper Table 2), innovations and NIS."""
 
 import streamlit as st
 
-from app import session
+from app import adapters, comparison, figures, runs, session, tables
+from estimators.api import DEFAULT_ESTIMATORS, ESTIMATORS
+from estimators.events import HEADING_SOURCES
+
+RUN_KEY = "est_run"
+HEADING_LABELS = {"mag": "magnetometer", "sun": "sun vector", "mag+sun": "both"}
 
 log = session.require_log()
-st.title(f"estimators: {log.meta.source}")
+root, sha256 = session.root(), session.selected_sha256()
+workspace = session.workspace()
+st.title(f"Estimators: {log.meta.source}")
+
+# ------------------------------------------------------------------ run form
+saved = list(workspace.list_calibrations(sha256)["calib_id"])
+noise_labels = {runs.DEFAULT_NOISE: "default R (datasheet noise)",
+                runs.AUTO_CALIBRATION: "calibrated R (automatic calibration of this log)",
+                **{calib_id: f"saved calibration {calib_id}" for calib_id in saved}}
+headings = HEADING_SOURCES if log.has("sun") else ("mag",)
+with st.form("run_form"):
+    chosen = st.multiselect("Estimators", list(ESTIMATORS), default=list(DEFAULT_ESTIMATORS), key="est_names")
+    left, right = st.columns(2)
+    heading = left.radio("Heading aid", headings, format_func=HEADING_LABELS.get, horizontal=True,
+                         key="est_heading", help=None if log.has("sun") else "the log has no sun-device data")
+    noise = right.radio("Measurement noise", list(noise_labels), format_func=noise_labels.get, key="est_noise")
+    submitted = st.form_submit_button("Run estimators", type="primary")
+if submitted:
+    settings = runs.RunSettings(estimators=tuple(chosen), heading=heading, noise=noise)
+    run_id = runs.find_run(workspace, sha256, settings)
+    if run_id is None:
+        bar = st.progress(0.0, text="Preparing ...")
+        with session.input_errors():
+            calibration = adapters.run_calibration(root, sha256, noise)
+            run_id = runs.replay_and_store(workspace, sha256, log, settings, calibration,
+                                           progress=lambda fraction, text: bar.progress(fraction, text=text))
+    else:
+        st.info("A run with these settings is stored already: showing it.")
+    st.session_state[RUN_KEY] = run_id
+
+stored = workspace.list_runs(sha256)
+if stored.empty:
+    st.info("No estimator run for this log yet: choose the settings above and press **Run estimators**.")
+    st.stop()
+labels = dict(zip(stored["run_id"], tables.runs_table(stored, workspace.list_logs()).apply(
+    lambda row: f"{row['created (UTC)']} · {row['estimators']} · heading {row['heading aid']} · {row['R']}",
+    axis=1), strict=True))
+if st.session_state.get(RUN_KEY) not in labels:
+    st.session_state[RUN_KEY] = next(iter(labels))
+run_id = st.selectbox("Run", list(labels), format_func=labels.get, key=RUN_KEY)
+states, diagnostics, report = adapters.stored_run(root, run_id)
+result = adapters.run_comparison(root, sha256, run_id)
+
+for name, facts in report.items():
+    with st.expander(f"{name}: used {', '.join(facts['used']) or 'nothing'}; "
+                     f"{facts['timings_s'].get('total', float('nan')):.1f} s"):
+        for reason in (*[f"skipped {k}: {v}" for k, v in facts["skipped"].items()], *facts["degradations"],
+                       *facts["warnings"]):
+            st.warning(reason)
+        st.json(facts["details"], expanded=False)
+
+st.subheader("RMS errors (paper Table 2 layout)")
+if result.reference is None:
+    st.warning("The log has neither ground truth nor an onboard estimate: errors cannot be computed.")
+else:
+    st.caption(f"Against the {'ground truth' if result.reference == 'truth' else 'onboard estimate (no truth)'};"
+               " position = horizontal distance, wind = horizontal vector difference, course where ground speed "
+               f">= {comparison.MIN_COURSE_SPEED_M_S:g} m/s.")
+    st.dataframe(adapters.rms_table(root, sha256, run_id).style.format("{:.2f}", na_rep="–"), key="rms_table")
+
+PANELS = {
+    "Attitude": [("roll_deg", "roll [deg]"), ("pitch_deg", "pitch [deg]"), ("yaw_deg", "yaw [deg]")],
+    "Altitude and speeds": [("alt_m", "altitude [m]"), ("ground_speed_m_s", "ground speed [m/s]"),
+                            ("course_deg", "course [deg]"), ("airspeed_m_s", "airspeed [m/s]")],
+    "Wind": [("wind_n_m_s", "wind north [m/s]"), ("wind_e_m_s", "wind east [m/s]")],
+}
+ERROR_ROWS = [(column, f"{label.split(' (')[0].lower()} error [{unit}]")
+              for column, (label, unit) in comparison.QUANTITIES.items()]
+
+
+@st.fragment
+def state_plots() -> None:
+    """States of every source, or their errors against the reference (reruns alone on a change)."""
+    panel = st.segmented_control("Show", [*PANELS, "Track", "Errors"], default="Attitude", key="est_panel")
+    if panel == "Track":
+        tracks = {name: frame for name, frame in result.quantities.items() if frame["north_m"].notna().any()}
+        st.plotly_chart(figures.track_figure(tracks), key="est_track")
+    elif panel == "Errors":
+        if not result.errors:
+            st.info("No reference to compute errors against.")
+        else:
+            st.plotly_chart(figures.quantity_figure(result.errors, ERROR_ROWS,
+                                                    title=f"Errors against the {result.reference}"), key="est_errors")
+    elif panel is not None:
+        st.plotly_chart(figures.quantity_figure(result.quantities, PANELS[panel], title=panel), key="est_states")
+
+
+@st.fragment
+def innovation_plots() -> None:
+    """Innovations and NIS of one estimator's sensor (reruns alone on a change)."""
+    summary = adapters.nis_summary(root, run_id)
+    st.dataframe(summary, hide_index=True, key="nis_summary")
+    left, middle, right = st.columns(3)
+    estimator = left.selectbox("Estimator", list(report), key="est_diag_estimator")
+    sensor = middle.selectbox("Sensor", list(summary.loc[summary["estimator"] == estimator, "sensor"]),
+                              key="est_diag_sensor")
+    window = right.select_slider("NIS window [updates]", [10, 20, 50, 100, 200, 500], value=50, key="est_window")
+    if sensor is None:
+        st.info(f"{estimator} fused no measurement.")
+        return
+    rows = adapters.sensor_diagnostics(root, run_id, estimator, sensor)
+    units = {str(c): comparison.innovation_unit(sensor, str(c)) for c in rows["component"].unique()}
+    st.plotly_chart(figures.innovation_figure(rows, units, title=f"{estimator}: {sensor} innovations"),
+                    key="est_innovations")
+    st.plotly_chart(figures.nis_figure(adapters.moving_nis(root, run_id, estimator, sensor, window), window,
+                                       comparison.nis_band(window), title=f"{estimator}: {sensor} NIS"),
+                    key="est_nis")
+
+
+st.subheader("Comparison")
+state_plots()
+st.subheader("Innovations and NIS")
+innovation_plots()
+
+st.subheader("Download")
+columns = st.columns(4)
+for k, (table, suffix) in enumerate([(t, s) for t in ("states", "diagnostics") for s in ("parquet", "csv")]):
+    columns[k].download_button(f"{table} (.{suffix})", adapters.run_file(root, run_id, table, suffix),
+                               file_name=f"{sha256[:8]}_{run_id}_{table}.{suffix}", key=f"download_{table}_{suffix}")

@@ -1,8 +1,71 @@
-"""sun page (being wired to the library)."""
+"""Sun vector: photocell currents, which cells are lit or faulty over time, the solved sun direction against the
+one predicted from the ephemeris and the attitude, and their angle."""
 
+import numpy as np
+import pandas as pd
 import streamlit as st
 
-from app import session
+from app import adapters, figures, session, sun_compare
+from app.comparison import gps_origin
+from ingest import SunDevice
 
 log = session.require_log()
-st.title(f"sun: {log.meta.source}")
+root, sha256 = session.root(), session.selected_sha256()
+st.title(f"Sun vector: {log.meta.source}")
+if not log.has("sun"):
+    st.info("This log has no sun-device data. Upload the photocell CSV (and its device JSON) together with the "
+            ".ulg on the Home page to use the sun vector.")
+    st.stop()
+
+device = log.meta.sun_device
+if device is None:
+    st.info("No device geometry was given: the default device (45 deg side faces, aligned with the body) is used.")
+    device = SunDevice()
+azimuths = ", ".join(f"{a:g}" for a in device.azimuths_deg)
+mounting = ", ".join(f"{a:g}" for a in device.mount_rpy_deg)
+st.caption(f"Device: side faces tilted {device.tilt_deg:g} deg at azimuths {azimuths} deg; mounted at roll, pitch, "
+           f"yaw {mounting} deg.")
+
+solution = adapters.sun_solution(root, sha256)
+states = sun_compare.cell_states(solution, device)
+solved = solution["status"] == "ok"
+columns = st.columns(4)
+columns[0].metric("Samples", f"{len(solution):,}")
+columns[1].metric("Solved", f"{100 * solved.mean():.1f} %")
+columns[2].metric("With a faulty cell", f"{100 * (states == sun_compare.CELL_FAULTY).any(axis=1).mean():.1f} %")
+faulty_share = (states == sun_compare.CELL_FAULTY).mean(axis=0)
+columns[3].metric("Most often faulty", f"cell {int(np.argmax(faulty_share)) + 1}" if faulty_share.any() else "none")
+
+currents_ma = {f"cell {k + 1}": log["sun"][column] * 1e3 for k, column in enumerate(log["sun"].columns)}
+st.plotly_chart(figures.time_series_figure(currents_ma, "current [mA]", title="Photocell currents"), key="currents")
+st.plotly_chart(figures.cell_state_figure(solution["time_s"].to_numpy(), states, sun_compare.CELL_STATE_NAMES),
+                key="cells")
+st.dataframe(pd.DataFrame({"cell": [f"cell {k + 1}" for k in range(states.shape[1])],
+                           "lit [%]": 100 * (states == sun_compare.CELL_LIT).mean(axis=0),
+                           "faulty [%]": 100 * faulty_share}).set_index("cell").T.round(1), key="cell_shares")
+if not solved.all():
+    st.warning("Epochs without a solution: " + ", ".join(f"{name} {count}" for name, count
+                                                          in solution.loc[~solved, "status"].value_counts().items()))
+
+st.subheader("Solved vs predicted")
+sources = [source for source in ("truth", "onboard") if log.has(f"{source}_attitude")]
+if gps_origin(log) is None or log.meta.utc_offset_s is None:
+    st.info("The prediction needs a GPS position and GPS time (for the ephemeris); this log lacks them.")
+elif not sources:
+    st.info("The prediction needs an attitude (ground truth or the autopilot's estimate); this log has neither.")
+else:
+    source = st.radio("Attitude for the prediction", sources, horizontal=True, key="sun_attitude",
+                      format_func={"truth": "ground truth", "onboard": "onboard estimate"}.get)
+    prediction = adapters.sun_prediction(root, sha256, source)
+    frames = {"sun device": prediction.rename(columns=lambda c: c.replace("solved_", "")),
+              source: prediction.rename(columns=lambda c: c.replace("predicted_", ""))}
+    st.plotly_chart(figures.quantity_figure(
+        frames, [("azimuth_deg", "azimuth [deg]"), ("elevation_deg", "elevation [deg]")],
+        title=f"Body-frame sun direction: photocells vs ephemeris + {source} attitude"), key="sun_angles")
+    error = prediction.set_index("time_s")["error_deg"].dropna()
+    columns = st.columns(3)
+    columns[0].metric("Median angle error", f"{error.median():.2f} deg")
+    columns[1].metric("95th percentile", f"{error.quantile(0.95):.2f} deg")
+    columns[2].metric("RMS", f"{np.sqrt((error**2).mean()):.2f} deg")
+    st.plotly_chart(figures.time_series_figure({"sun device": error}, "angle to the prediction [deg]",
+                                               title="Angular error"), key="sun_error")

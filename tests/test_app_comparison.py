@@ -1,0 +1,82 @@
+"""Comparison helpers of the dashboard (errors, Table 2 RMS, NIS bands, sun-vector angles), tested directly."""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from app import comparison, sun_compare
+from ingest import SunDevice
+from ingest.flightlog import FlightLog, LogMetadata
+
+
+def _log(n: int = 2000, rate_hz: float = 25.0) -> FlightLog:
+    """A log with ground truth only: level flight north at 10 m/s in a 1 m/s northerly wind."""
+    time_s = 10.0 + np.arange(n) / rate_hz
+    index = pd.Index(time_s, name="time_s")
+    lat = 35.0 + 10.0 * (time_s - time_s[0]) / 111_000.0
+    return FlightLog(streams={
+        "gps": pd.DataFrame({"lat_deg": lat, "lon_deg": 108.0, "alt_m": 600.0}, index=index),
+        "truth_attitude": pd.DataFrame({"roll_deg": 0.0, "pitch_deg": 0.0, "yaw_deg": 179.0}, index=index),
+        "truth_global_position": pd.DataFrame({"lat_deg": lat, "lon_deg": 108.0, "alt_m": 600.0}, index=index),
+        "truth_local_position": pd.DataFrame({"vx_m_s": 10.0, "vy_m_s": 0.0, "vz_m_s": 0.0}, index=index),
+        "truth_wind": pd.DataFrame({"wind_n_m_s": 1.0, "wind_e_m_s": 0.0}, index=index),
+    }, meta=LogMetadata(source="synthetic.ulg"))
+
+
+def _estimate(log: FlightLog, name: str, yaw_deg: float, alt_offset_m: float) -> pd.DataFrame:
+    time_s = np.arange(10.0, 10.0 + 79.0, 0.02)
+    reference = comparison.reference_states(log, "truth", time_s)
+    return reference.assign(estimator=name, yaw_deg=yaw_deg, alt_m=reference["alt_m"] + alt_offset_m)
+
+
+def test_errors_wrap_angles_and_rms_follows_table2_layout():
+    log = _log()
+    states = pd.concat([_estimate(log, "three_stage", -179.0, 5.0), _estimate(log, "full_state_direct", 178.0, -1.0)],
+                       ignore_index=True)
+    result = comparison.compare(states, log)
+    assert result.reference == "truth" and set(result.quantities) == {"three_stage", "full_state_direct", "truth"}
+    table = comparison.rms_table(result.errors)
+    assert list(table.columns) == [label for label, _ in comparison.QUANTITIES.values()]
+    assert table.loc["three_stage", "Yaw Angle (deg)"] == pytest.approx(2.0)  # -179 vs 179 wraps to 2 deg
+    assert table.loc["full_state_direct", "Yaw Angle (deg)"] == pytest.approx(1.0)
+    assert table.loc["three_stage", "Height (m)"] == pytest.approx(5.0)
+    assert table.loc["three_stage", "Position (m)"] == pytest.approx(0.0, abs=1e-2)  # alt shifts the tangent plane
+    assert table.loc["three_stage", "Airspeed (m/s)"] == pytest.approx(0.0, abs=1e-9)
+    truth = result.quantities["truth"]
+    assert truth["airspeed_m_s"].iloc[0] == pytest.approx(9.0) and truth["course_deg"].iloc[0] == pytest.approx(0.0)
+
+
+def test_reference_outside_its_streams_is_nan_and_course_needs_speed():
+    log = _log()
+    reference = comparison.reference_states(log, "truth", np.array([0.0, 20.0, 1e4]))
+    assert np.isnan(reference["roll_deg"].iloc[0]) and np.isnan(reference["roll_deg"].iloc[2])
+    assert comparison.reference_states(log, "onboard", np.array([20.0])) is None
+    slow = comparison.quantities(pd.DataFrame({"time_s": [0.0], "vn_m_s": [1.0], "ve_m_s": [1.0]}), None)
+    assert np.isnan(slow["course_deg"].iloc[0]) and np.isnan(slow["north_m"].iloc[0])
+
+
+def test_nis_band_and_summary():
+    low, high = comparison.nis_band(100)
+    assert low == pytest.approx(0.742, abs=1e-3) and high == pytest.approx(1.296, abs=1e-3)
+    rng = np.random.default_rng(0)
+    diagnostics = pd.DataFrame({"estimator": "e", "sensor": "baro", "component": "alt", "time_s": np.arange(5000.0),
+                                "nis": rng.chisquare(1, 5000), "accepted": True})
+    summary = comparison.nis_summary(diagnostics)
+    assert summary.loc[0, "inside 95 % bound [%]"] == pytest.approx(95.0, abs=1.5)
+    assert summary.loc[0, "mean NIS [-]"] == pytest.approx(1.0, abs=0.1)
+
+
+def test_sun_body_angles_and_cell_states():
+    azimuth, elevation = sun_compare.body_angles_deg(np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]]))
+    np.testing.assert_allclose(elevation, [0.0, 90.0, 0.0])
+    np.testing.assert_allclose(azimuth[[0, 2]], [0.0, 90.0])
+    assert sun_compare.angle_between_deg(np.array([[1.0, 0, 0]]), np.array([[0.0, 1, 0]]))[0] == pytest.approx(90)
+
+    sun = np.array([0.9, 0.0, -np.sqrt(1 - 0.81)])  # ahead, 26 deg above the wing plane
+    solution = pd.DataFrame({"sun_x": [sun[0]], "sun_y": [sun[1]], "sun_z": [sun[2]],
+                             "cells_used": [0b1111111], "faulty_cells": [0b0000010]})
+    states = sun_compare.cell_states(solution, SunDevice())
+    assert states[0, 0] == sun_compare.CELL_LIT and states[0, 1] == sun_compare.CELL_FAULTY
+    assert states[0, 4] == sun_compare.CELL_DARK  # side cell 5 faces backwards (azimuth 180 deg)
