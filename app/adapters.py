@@ -23,12 +23,13 @@ import pandas as pd
 import streamlit as st
 
 from app import comparison, runs, samples, sun_compare, tables
+from app.commands.calibrate import local_gravity, tau_replay
 from app.comparison import Comparison, gps_origin
 from app.workspace import LogEntry, Workspace
 from calib.calibration import Calibration, FirSettings, allan_curves, calibrate, sensor_samples, with_tau
 from calib.export import calibration_to_dict, read_calibration
 from calib.fir import design_fir, edge_slice, zero_phase_lowpass
-from calib.px4_params import px4_parameters, write_px4_params
+from calib.px4_params import DEFAULT_PREDICT_PERIOD_S, px4_parameters, write_px4_params
 from calib.segments import (
     ACCEL_COLUMNS,
     GYRO_COLUMNS,
@@ -38,7 +39,7 @@ from calib.segments import (
     find_steady_segments,
     user_segment,
 )
-from calib.tau import user_tau
+from calib.tau import TauSelection, choose_tau, user_tau
 from estimators.environment import geodetic_to_ned
 from estimators.sun_vector import solve_sun_log
 from ingest import FlightLog, InputError, SunDevice, load_flight_log, load_sun_device, with_sun
@@ -207,7 +208,7 @@ def calibration(root: str, sha256: str, window: tuple[float, float] | None, fir:
     log = stored_log(root, sha256)
     settings = {sensor: FirSettings(None if np.isnan(cutoff) else float(cutoff), int(taps) or None)
                 for sensor, cutoff, taps in fir}
-    return calibrate(log, segment=_segment(log, window), fir=settings, noise=noise)
+    return calibrate(log, segment=_segment(log, window), fir=settings, noise=noise, gravity=local_gravity(log))
 
 
 @st.cache_data(max_entries=16, show_spinner=False)
@@ -229,16 +230,28 @@ def allan(root: str, sha256: str, window: tuple[float, float] | None, fir: FirRo
     return allan_curves(stored_log(root, sha256), calibration(root, sha256, window, fir, noise))
 
 
-def with_user_tau(cal: Calibration, tau: float) -> Calibration:
-    """The calibration with a user-set tau (accelerometer R rebuilt; cheap, not cached)."""
-    return with_tau(cal, user_tau(tau))
+@st.cache_data(max_entries=8, show_spinner="Replaying the three-stage estimator for every candidate tau ...")
+def auto_tau(root: str, sha256: str, window: tuple[float, float] | None, fir: FirRows, noise: str,
+             method: str) -> TauSelection:
+    """Tau chosen by replaying the three-stage estimator (:func:`calib.tau.choose_tau` with the ``calibrate``
+    command's replay), with the evidence curves."""
+    cal = calibration(root, sha256, window, fir, noise)
+    return choose_tau(tau_replay(stored_log(root, sha256), cal), method=method)
 
 
-def calibration_files(cal: Calibration) -> tuple[str, str]:
-    """CALIB.json text and the PX4 ``.params`` text of a calibration."""
+def with_tau_value(cal: Calibration, tau: float | TauSelection) -> Calibration:
+    """The calibration with a user-set tau or an automatic selection (accelerometer R rebuilt; cheap)."""
+    return with_tau(cal, tau if isinstance(tau, TauSelection) else user_tau(tau))
+
+
+def calibration_files(root: str, sha256: str, cal: Calibration) -> tuple[str, str]:
+    """CALIB.json text and the PX4 ``.params`` text of a calibration (EKF2 period from the log's parameters)."""
+    predict_us = stored_log(root, sha256).meta.parameters.get("EKF2_PREDICT_US")
+    period_s = predict_us / 1e6 if predict_us else DEFAULT_PREDICT_PERIOD_S
     with tempfile.TemporaryDirectory() as directory:
-        params_path = write_px4_params(px4_parameters(cal), Path(directory) / "calib.params",
-                                       header=f"EKF2 noise from solarnav calibration of {cal.source}")
+        params_path = write_px4_params(px4_parameters(cal, period_s), Path(directory) / "calib.params",
+                                       header=f"EKF2 noise parameters calibrated by solarnav from {cal.source}\n"
+                                              f"EKF2 prediction period {period_s * 1e3:g} ms")
         params_text = params_path.read_text()
     return json.dumps(calibration_to_dict(cal), indent=2, allow_nan=False) + "\n", params_text
 

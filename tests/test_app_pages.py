@@ -120,6 +120,12 @@ def test_calibration_tables_tau_and_window(open_page):
     assert not at.exception
     [noise] = _frames(at, lambda v: "segment_end_s" in v.columns)
     assert noise["segment_end_s"].max() == pytest.approx(low + 0.6 * (high - low), abs=0.05)
+    assert {button.label for button in at.get("download_button")} == {"Download CALIB.json",
+                                                                       "Download PX4 .params"}
+
+    at.radio(key="calib_tau_mode").set_value("likelihood").run()  # replays the three-stage filter per tau
+    assert not at.exception and not at.error
+    assert any(caption.value.startswith("tau = ") for caption in at.caption)
 
 
 def test_estimators_run_compare_and_diagnose(open_page, workspace_dir):

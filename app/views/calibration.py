@@ -9,8 +9,11 @@ from app import adapters, figures, session, tables
 from calib.calibration import SENSORS
 from calib.fir import frequency_response
 from calib.tables import noise_table, r_tables, table4
+from calib.tau import TAU_METHODS
 
 TAU_CHOICES = (0.1, 0.2, 0.5, 1.0, 2.0, 5.0, 10.0, 20.0, 50.0, 100.0)
+TAU_MODE_LABELS = {"manual": "set by hand", "likelihood": "automatic: innovation likelihood",
+                   "nis": "automatic: mean NIS = 1"}
 WINDOW_KEY = "calib_window"
 
 log = session.require_log()
@@ -89,16 +92,26 @@ with tab_filter:
         st.info(f"{sensor}: {warning}")
 
 with tab_r:
-    tau = st.select_slider("tau (eq 52: multiplies the accelerometer's body-y variance)", TAU_CHOICES, value=1.0,
-                           key="calib_tau")
-    current = adapters.with_user_tau(base, tau) if tau != base.tau.tau else base
+    tau_mode = st.radio("tau (eq 52: multiplies the accelerometer's body-y variance)", ["manual", *TAU_METHODS],
+                        horizontal=True, key="calib_tau_mode", format_func=TAU_MODE_LABELS.get)
+    if tau_mode == "manual":
+        tau = st.select_slider("tau", TAU_CHOICES, value=1.0, key="calib_tau")
+        current = adapters.with_tau_value(base, tau) if tau != base.tau.tau else base
+    else:
+        with session.input_errors():
+            selection = adapters.auto_tau(root, sha256, window, fir_rows, noise, tau_mode)
+        current = adapters.with_tau_value(base, selection)
+        st.plotly_chart(figures.tau_curve_figure(selection.log10_tau_grid, selection.neg_log_likelihood,
+                                                 selection.mean_nis, selection.tau, selection.nis_band),
+                        key="calib_tau_curve")
+        st.caption(f"tau = {selection.tau:.3g}: mean NIS {selection.nis_at_tau:.3g} over {selection.n_innovations} "
+                   f"innovations (95 % band {selection.nis_band[0]:.3g} .. {selection.nis_band[1]:.3g}), lag-1 "
+                   f"autocorrelation {selection.lag1_autocorrelation:.2f}. {selection.note}")
     columns = st.columns(3)
     for k, (name, matrix) in enumerate(r_tables(current).items()):
         unit = current.sensors[name].unit if name in current.sensors else ""
         columns[k % 3].write(f"**{name}** [{unit}^2]")
         columns[k % 3].dataframe(matrix.style.format("{:.3e}"), key=f"calib_r_{name}")
-    st.caption("Automatic tau (likelihood or NIS over filter replays) needs the estimators; see the Estimators "
-               "page.")
 
 with tab_allan:
     if not base.allan:
@@ -110,12 +123,13 @@ with tab_allan:
 
 # ------------------------------------------------------------------ export
 st.subheader("Export")
-calib_json, params_text = adapters.calibration_files(current)
+calib_json, params_text = adapters.calibration_files(root, sha256, current)
 left, middle, right = st.columns(3)
 left.download_button("Download CALIB.json", calib_json, file_name="CALIB.json", mime="application/json")
 middle.download_button("Download PX4 .params", params_text, file_name="solarnav_ekf2.params", mime="text/plain")
 if right.button("Save in the workspace", key="calib_save"):
     fir_json = [[name, None if np.isnan(cutoff) else cutoff, taps] for name, cutoff, taps in fir_rows]
-    settings = {"window_s": window, "fir": fir_json, "noise": noise, "tau": tau}
+    settings = {"window_s": window, "fir": fir_json, "noise": noise, "tau": current.tau.tau,
+                "tau_method": current.tau.method}
     calib_id = session.workspace().add_calibration(sha256, settings, calib_json)
     st.success(f"Saved calibration {calib_id}.")
