@@ -25,6 +25,7 @@ import streamlit as st
 from app import comparison, runs, samples, sun_compare, tables
 from app.commands.calibrate import local_gravity, tau_replay
 from app.comparison import Comparison, gps_origin
+from app.loading import load_log
 from app.workspace import LogEntry, Workspace
 from calib.calibration import Calibration, FirSettings, allan_curves, calibrate, sensor_samples, with_tau
 from calib.export import calibration_to_dict, read_calibration
@@ -42,7 +43,7 @@ from calib.segments import (
 from calib.tau import TauSelection, choose_tau, user_tau
 from estimators.environment import geodetic_to_ned
 from estimators.sun_vector import solve_sun_log
-from ingest import FlightLog, InputError, SunDevice, load_flight_log, load_sun_device, with_sun
+from ingest import FlightLog, SunDevice
 
 #: Bytes per MB in Streamlit's ``server.maxUploadSize``.
 BYTES_PER_MB = 1024 * 1024
@@ -87,14 +88,7 @@ def parsed_log(sha256: str, sun_sha256: str | None, device_sha256: str | None, n
     InputError
         A file cannot be used (pages show it with :func:`app.session.input_errors`).
     """
-    log = load_flight_log(_ulog, name=name, max_bytes=max_upload_bytes())
-    device = None if _device_json is None else load_sun_device(_device_json, name="sun-device JSON")
-    if _sun_csv is None:
-        if device is not None:
-            raise InputError("a device geometry was given without the sun-device CSV it describes",
-                             source="sun-device JSON")
-        return log
-    return with_sun(log, _sun_csv, device=device, name="sun-device CSV")
+    return load_log(_ulog, _sun_csv, _device_json, name=name, max_bytes=max_upload_bytes())
 
 
 def validate_upload(content: bytes, name: str, sun_csv: bytes | None, device_json: bytes | None) -> None:

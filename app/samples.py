@@ -2,14 +2,18 @@
 
 A sample is a ``.ulg`` file plus, optionally, a sun-device CSV and a device JSON named after the ULog's stem
 (``paper.ulg``, ``paper_sun.csv``, ``paper_device.json``; other files such as ``paper_sim.json`` are ignored).
-No Streamlit here: the ``dashboard`` command and the app's entrypoint both call :func:`add_samples`.
+No Streamlit here: the app's entrypoint calls :func:`add_samples`, the ``dashboard`` command
+:func:`prepare_samples`.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
+from app import runs
+from app.loading import load_stored_log
 from app.workspace import LogEntry, Workspace
 
 #: Where the simulator writes the bundled logs (``solarnav simulate``).
@@ -61,3 +65,26 @@ def add_samples(workspace: Workspace, samples: list[SampleLog] | None = None) ->
                               sun_csv=sample.sun_csv.read_bytes() if sample.sun_csv else None,
                               device_json=sample.device_json.read_bytes() if sample.device_json else None)
             for sample in samples]
+
+
+def prepare_samples(workspace: Workspace, samples: list[SampleLog] | None = None,
+                    report: Callable[[str], None] = print) -> list[LogEntry]:
+    """Add the bundled samples and give each one without a stored run the default estimator run, so the dashboard
+    opens on processed logs (first start only; later starts find the runs in the workspace).
+
+    Parameters
+    ----------
+    workspace : Workspace
+        Where the samples and runs are stored.
+    samples : list of SampleLog, optional
+        Default :func:`find_samples`.
+    report : callable
+        Receives one progress line per step.
+    """
+    entries = add_samples(workspace, samples)
+    for entry in entries:
+        if workspace.list_runs(entry.sha256).empty:
+            report(f"{entry.display_name}: running the estimators (first start only) ...")
+            runs.replay_and_store(workspace, entry.sha256, load_stored_log(workspace, entry.sha256),
+                                  runs.RunSettings(), progress=lambda fraction, text: report(f"  {text}"))
+    return entries

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import tomllib
 
-from app import samples
+from app import runs, samples
 from app.cli import build_parser
 from app.commands import dashboard
 from app.workspace import Workspace
@@ -13,8 +13,9 @@ from tests.conftest import REPO_DIR
 
 
 def test_parser_and_streamlit_command(tmp_path):
-    args = build_parser().parse_args(["dashboard", "--workspace", str(tmp_path / "ws"), "--port", "8765"])
-    assert args.run is dashboard.run and args.port == 8765
+    args = build_parser().parse_args(["dashboard", "--workspace", str(tmp_path / "ws"), "--port", "8765",
+                                      "--skip-sample-runs"])
+    assert args.run is dashboard.run and args.port == 8765 and args.skip_sample_runs
     command = dashboard.streamlit_command(tmp_path / "ws", 8765)
     assert command[1:4] == ["-m", "streamlit", "run"] and command[4].endswith("app/dashboard.py")
     assert command[command.index("--server.port") + 1] == "8765"
@@ -47,3 +48,18 @@ def test_samples_are_added_once_with_their_companions(tmp_path):
     assert [e.sha256 for e in first] == [e.sha256 for e in again]
     assert len(workspace.list_logs()) == 2 and all(e.has_sun for e in first)
     assert samples.find_samples(tmp_path / "missing") == []
+
+
+def test_prepare_samples_stores_a_default_run_once(tmp_path):
+    short = [sample for sample in samples.find_samples() if sample.ulog.name == "failed_cell.ulg"]
+    assert short, "the bundled short scenario is missing (run `solarnav simulate`)"
+    workspace = Workspace(tmp_path / "ws")
+    lines: list[str] = []
+    [entry] = samples.prepare_samples(workspace, short, report=lines.append)
+    [run_id] = workspace.list_runs(entry.sha256)["run_id"]
+    states, diagnostics, report = workspace.load_run(run_id)
+    assert set(states["estimator"].astype(str)) == set(report) == set(runs.RunSettings().estimators)
+    assert len(diagnostics) > 0 and any("running the estimators" in line for line in lines)
+    assert runs.find_run(workspace, entry.sha256, runs.RunSettings()) == run_id
+    samples.prepare_samples(Workspace(tmp_path / "ws"), short, report=lines.append)  # restart: nothing to redo
+    assert len(workspace.list_runs(entry.sha256)) == 1

@@ -1,7 +1,8 @@
 """``solarnav dashboard [--workspace DIR] [--port N]``: open the browser dashboard on a workspace.
 
-The bundled sample logs are added to the workspace on first start, then Streamlit serves ``app/dashboard.py`` from
-the repository root, where ``.streamlit/config.toml`` (upload limit, headless) is read.
+On first start the bundled sample logs are added to the workspace and their default estimator runs computed (the
+Home page opens on them processed); then Streamlit serves ``app/dashboard.py`` from the repository root, where
+``.streamlit/config.toml`` (upload limit, headless) is read.
 """
 
 from __future__ import annotations
@@ -11,7 +12,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from app.samples import add_samples
+from app.samples import add_samples, prepare_samples
 from app.workspace import Workspace
 
 #: The Streamlit entrypoint.
@@ -29,6 +30,8 @@ def add_parser(subparsers) -> None:
                              "./workspace)")
     parser.add_argument("--port", metavar="N", type=int, default=DEFAULT_PORT,
                         help=f"local port to serve on (default {DEFAULT_PORT})")
+    parser.add_argument("--skip-sample-runs", action="store_true",
+                        help="start faster: add the bundled samples without computing their estimator runs")
 
 
 def streamlit_command(workspace: Path, port: int) -> list[str]:
@@ -40,7 +43,9 @@ def streamlit_command(workspace: Path, port: int) -> list[str]:
 def run(args: argparse.Namespace) -> int:
     """Prepare the workspace and serve the dashboard until interrupted; Streamlit's exit code."""
     workspace = Path(args.workspace).resolve()
-    entries = add_samples(Workspace(workspace))
+    store = Workspace(workspace)
+    entries = (add_samples(store) if args.skip_sample_runs
+               else prepare_samples(store, report=lambda line: print(line, flush=True)))
     print(f"workspace {workspace}: {len(entries)} bundled sample log(s) ready", flush=True)
     try:
         return subprocess.run(streamlit_command(workspace, args.port), cwd=CONFIG_DIR, check=False).returncode
