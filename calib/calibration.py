@@ -17,7 +17,6 @@ from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
-import pymap3d
 
 from calib.allan import MIN_SAMPLES as ALLAN_MIN_SAMPLES
 from calib.allan import AllanFigures, allan_deviation, allan_figures
@@ -38,6 +37,7 @@ from calib.segments import (
 from calib.tau import DEFAULT_TAU, TauSelection
 from ingest.errors import InputError
 from ingest.flightlog import FlightLog, stream_info
+from ingest.geodesy import geodetic_to_ned
 
 NOISE_CHOICES = ("sigma", "eta")
 #: GPS rows below this fix type (3 = 3D fix) carry no usable position.
@@ -297,7 +297,7 @@ def sensor_samples(log: FlightLog, sensor: str, segment: Segment) -> tuple[np.nd
 
     Times are the sensor's ``sample_time_s`` where logged and increasing, else the log time. Rows with a NaN
     channel are dropped, GPS rows below a 3D fix too; GPS position becomes local north, east,
-    down [m] about the segment's first fix (tangent plane via pymap3d; down = -(alt - alt0) as in math note 1.5).
+    down [m] about the segment's first fix (ingest.geodesy.geodetic_to_ned).
     """
     channels = SENSORS[sensor]
     frame = segment.select(log[channels.stream])
@@ -307,8 +307,7 @@ def sensor_samples(log: FlightLog, sensor: str, segment: Segment) -> tuple[np.nd
     values = frame[list(channels.columns)].to_numpy(dtype=float)
     if sensor == "gps_position" and len(values):
         lat, lon, alt = values.T
-        north, east, _ = pymap3d.geodetic2ned(lat, lon, alt, lat[0], lon[0], alt[0])
-        values = np.column_stack([north, east, -(alt - alt[0])])
+        values = np.column_stack(geodetic_to_ned(lat, lon, alt, lat[0], lon[0], alt[0]))
     time_s = frame.index.to_numpy(dtype=float)
     if "sample_time_s" in frame:
         # The sensor's own sample clock is regular where the logging time jitters (SITL publishes in bursts).

@@ -1,8 +1,6 @@
-"""Environment models shared by the estimators and the simulator: gravity, ISA atmosphere, the earth's magnetic
-field (World Magnetic Model), the sun's direction (NREL SPA) and geodetic <-> local NED conversion.
-
-Frames: local NED (north, east, down) at a reference point; the down axis is -(altitude - reference altitude) so that
-GPS and barometric heights stay consistent (math note 1.5).
+"""Environment models shared by the estimators and the simulator: the earth's magnetic field (World Magnetic
+Model) and the sun's direction (NREL SPA), plus re-exports of the lower-layer gravity, ISA and geodesy helpers
+(:mod:`ingest.atmosphere`, :mod:`ingest.geodesy`) so model code has one import for its environment.
 """
 
 from __future__ import annotations
@@ -14,7 +12,6 @@ from functools import lru_cache
 import numpy as np
 import pandas as pd
 import pvlib
-import pymap3d
 from pygeomag import GeoMag
 
 from ingest.atmosphere import AIR_GAS_CONSTANT_J_KG_K, STANDARD_GRAVITY_M_S2
@@ -22,6 +19,7 @@ from ingest.atmosphere import ISA_LAPSE_RATE_K_M as ISA_LAPSE_K_M
 from ingest.atmosphere import ISA_SEA_LEVEL_PRESSURE_PA as ISA_P0_PA
 from ingest.atmosphere import altitude_pressure_pa as isa_pressure_pa
 from ingest.atmosphere import pressure_altitude_m as isa_altitude_m
+from ingest.geodesy import geodetic_to_ned, local_gravity_m_s2, ned_to_geodetic
 
 __all__ = ["ISA_LAPSE_K_M", "ISA_P0_PA", "MIN_SUN_ELEVATION_DEG", "STANDARD_GRAVITY_M_S2", "air_density_kg_m3",
            "decimal_year", "earth_field_ned_gauss", "geodetic_to_ned", "isa_altitude_m", "isa_pressure_pa",
@@ -29,20 +27,6 @@ __all__ = ["ISA_LAPSE_K_M", "ISA_P0_PA", "MIN_SUN_ELEVATION_DEG", "STANDARD_GRAV
 
 #: Sun elevation below which photocell measurements are not used [deg].
 MIN_SUN_ELEVATION_DEG = 5.0
-
-
-def local_gravity_m_s2(lat_deg, alt_m):
-    """Normal gravity [m/s^2] on the WGS-84 ellipsoid (Somigliana) with a free-air height correction.
-
-    Parameters
-    ----------
-    lat_deg : numeric
-        Geodetic latitude [deg], positive north.
-    alt_m : numeric
-        Height above the ellipsoid / MSL [m] (the difference is irrelevant at this precision).
-    """
-    s2 = np.sin(np.radians(lat_deg)) ** 2
-    return 9.7803253359 * (1 + 0.00193185265241 * s2) / np.sqrt(1 - 0.00669437999013 * s2) - 3.086e-6 * alt_m
 
 
 def air_density_kg_m3(pressure_pa, temp_c):
@@ -129,27 +113,3 @@ def sun_direction_ned(times_utc, lat_deg, lon_deg, alt_m, pressure_pa=None, temp
     s_ned = np.column_stack([np.cos(elevation) * np.cos(azimuth), np.cos(elevation) * np.sin(azimuth),
                              -np.sin(elevation)])
     return s_ned, elevation_deg
-
-
-def geodetic_to_ned(lat_deg, lon_deg, alt_m, lat0_deg, lon0_deg, alt0_m):
-    """Local NED coordinates [m] of geodetic points relative to a reference point.
-
-    North/east from the WGS-84 tangent plane (pymap3d); down = -(alt - alt0) so it matches barometric height.
-    """
-    north, east, _ = pymap3d.geodetic2ned(lat_deg, lon_deg, alt_m, lat0_deg, lon0_deg, alt0_m)
-    return np.asarray(north), np.asarray(east), -(np.asarray(alt_m, dtype=float) - alt0_m)
-
-
-def ned_to_geodetic(north_m, east_m, down_m, lat0_deg, lon0_deg, alt0_m):
-    """Geodetic latitude, longitude [deg] and altitude [m] of local NED points (exact inverse of
-    :func:`geodetic_to_ned`).
-
-    North/east are tangent-plane coordinates of the point at its own altitude, so the tangent-plane down
-    coordinate (altitude plus earth curvature) is found by fixed-point iteration; two passes reach < 1 mm at 10 km.
-    """
-    alt_m = alt0_m - np.asarray(down_m, dtype=float)
-    tangent_down_m = -(alt_m - alt0_m)
-    for _ in range(3):
-        lat, lon, _ = pymap3d.ned2geodetic(north_m, east_m, tangent_down_m, lat0_deg, lon0_deg, alt0_m)
-        _, _, tangent_down_m = pymap3d.geodetic2ned(lat, lon, alt_m, lat0_deg, lon0_deg, alt0_m)
-    return np.asarray(lat), np.asarray(lon), alt_m
