@@ -18,7 +18,13 @@ Three small EKFs in series, each feeding the next its estimate as an input (mode
    inflated by the stage-1 covariance, ``R_eff = R + J P1 J^T`` with ``J = dh/d(phi, theta)``; the correlated
    vector is whitened (Cholesky) before its scalar updates.
 3. **Navigation** at the GPS epochs (Algorithm 1, T31). Fixed-wing with airspeed: ``x3 = (p_n, p_e, V_g, chi,
-   w_n, w_e)`` (eq 26-33 corrected) driven by ``u = (V_a, q, r, phi, theta, psi)``; per GPS epoch the wind-triangle
+   w_n, w_e, dev_a, dev_b, dev_c)`` (eq 26-33 corrected) driven by ``u = (V_a, q, r, phi, theta, psi_2)``, where
+   the heading ``psi = psi_2 - (dev_a + dev_b sin psi_2 + dev_c cos psi_2)`` is the stage-2 heading corrected by a
+   compass-deviation model [ADD: a body-fixed horizontal field error, i.e. the magnetometer's hard iron and the
+   vertical field seen through stage 1's tilt error, makes the heading error a constant plus a sinusoid of the
+   heading; observable through the wind triangle in turns, like B&M's psi state, math note 3.3 / 7.2; zero sigmas
+   give the paper's 6 states]; the reported yaw is that corrected heading while this stage runs. Per GPS epoch the
+   wind-triangle
    pseudo-measurement (``R = J diag(sigma_Va^2, P_psi) J^T + sigma_w^2 I``, whitened, ungated), then GPS north,
    east, then velocity (NED form, or ground speed and course with ``gps_velocity_mode="paper"``). It starts at the
    first GPS epoch with a ground speed above V_min (the model is invalid on the ground / in the hand launch).
@@ -55,7 +61,9 @@ from estimators.events import AIRSPEED, BARO, GPS_POS, GPS_VEL, MAG, OUTPUT, SUN
 from estimators.results import EstimatorReport, EstimatorRun, states_frame
 from estimators.sun_vector import sun_tangent_basis
 from estimators.three_stage_models import (
+    I_DEVIATION,
     StateSpec,
+    corrected_heading,
     euler_yaw_rate,
     initial_covariance,
     ned_acceleration,
@@ -111,6 +119,8 @@ N_COUNTERS = 8
 PITCH_GUARD_RAD = math.radians(85.0)
 #: An airspeed or GPS value older than this is stale: no centripetal term, no wind pseudo, no GPS acceleration [s].
 STALE_AFTER_S = 1.0
+#: Correlation time of the airspeed and stage-2 heading errors entering stage 3 as inputs [s].
+INPUT_CORRELATION_S = 1.0
 #: Variance limits of the covariance repair; angle standard deviations are capped at 180 deg (math note 7.2).
 MIN_VARIANCE = 1e-12
 EIG_FLOOR = 1e-12
@@ -150,6 +160,11 @@ class ThreeStageOptions:
     wind_pseudo_sigma_m_s : float
         Model error of the wind triangle (sideslip, flight-path angle, vertical wind) [m/s], added to the variance
         propagated from airspeed and heading.
+    deviation_sigma_deg, deviation_rw_deg_sqrt_s : float
+        Initial sigma [deg] and random walk [deg/sqrt(s)] of each coefficient of the fixed-wing stage-3 compass
+        deviation model ``a + b sin psi_2 + c cos psi_2`` of the stage-2 heading error (body-fixed field errors:
+        hard iron, and the vertical field seen through stage 1's tilt error), observed by the wind triangle in
+        turns. 0 and 0 give the paper's 6-state navigation stage.
     """
 
     accel_update_rate_hz: float = 50.0
@@ -163,6 +178,8 @@ class ThreeStageOptions:
     vertical_speed_lpf_s: float = 1.0
     gps_acceleration_lpf_s: float = 0.5
     wind_pseudo_sigma_m_s: float = 0.3
+    deviation_sigma_deg: float = 5.0
+    deviation_rw_deg_sqrt_s: float = 0.02
 
     def __post_init__(self):
         for name in ("accel_update_rate_hz", "accel_tau", "accel_gate", "airspeed_lpf_s", "baro_lpf_s",
@@ -170,7 +187,8 @@ class ThreeStageOptions:
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
                 raise ValueError(f"ThreeStageOptions.{name} must be a positive number, got {value!r}")
-        for name in ("manoeuvre_threshold_m_s2", "wind_pseudo_sigma_m_s"):
+        for name in ("manoeuvre_threshold_m_s2", "wind_pseudo_sigma_m_s", "deviation_sigma_deg",
+                     "deviation_rw_deg_sqrt_s"):
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
                 raise ValueError(f"ThreeStageOptions.{name} must be a non-negative number, got {value!r}")
@@ -193,15 +211,18 @@ def stage2_states(config: EstimatorConfig, *, absolute_yaw: bool) -> tuple[State
     return (StateSpec("yaw_rad", "rad", sigma0, YAW_RW_RAD_SQRT_S),)
 
 
-def stage3_fixed_wing_states(config: EstimatorConfig) -> tuple[StateSpec, ...]:
-    """Stage 3, fixed-wing mode (math note 3.3); wind walk from ``config.noise.wind_rw_m_s_sqrt_s``."""
+def stage3_fixed_wing_states(config: EstimatorConfig, options: ThreeStageOptions) -> tuple[StateSpec, ...]:
+    """Stage 3, fixed-wing mode (math note 3.3); wind walk from ``config.noise.wind_rw_m_s_sqrt_s``; the heading
+    bias of stage 2 from ``options``."""
     ini = config.initial
     return (StateSpec("pn_m", "m", ini.position_m, POSITION_RW_M_SQRT_S),
             StateSpec("pe_m", "m", ini.position_m, POSITION_RW_M_SQRT_S),
             StateSpec("vg_m_s", "m/s", ini.velocity_m_s, GROUND_SPEED_RW_M_S_SQRT_S),
             StateSpec("chi_rad", "rad", math.radians(ini.yaw_deg), COURSE_RW_RAD_SQRT_S),
             StateSpec("wind_n_m_s", "m/s", ini.wind_m_s, config.noise.wind_rw_m_s_sqrt_s),
-            StateSpec("wind_e_m_s", "m/s", ini.wind_m_s, config.noise.wind_rw_m_s_sqrt_s))
+            StateSpec("wind_e_m_s", "m/s", ini.wind_m_s, config.noise.wind_rw_m_s_sqrt_s),
+            *(StateSpec(f"deviation_{name}_rad", "rad", math.radians(options.deviation_sigma_deg),
+                        math.radians(options.deviation_rw_deg_sqrt_s)) for name in ("a", "b", "c")))
 
 
 def stage3_multicopter_states(config: EstimatorConfig) -> tuple[StateSpec, ...]:
@@ -222,6 +243,7 @@ class KernelParams(NamedTuple):
     accel_psd: float  # accelerometer noise density squared [m^2/s^3]
     accel_var: np.ndarray  # (3,) stage-1 R per axis at the update rate [m^2/s^4], tau on y
     accel_update_dt_s: float
+    covariance_dt_s: float  # interval of the deferred stage-1 and stage-3 covariance propagation [s]
     accel_gate: float
     manoeuvre_threshold_m_s2: float
     airspeed_model: bool  # stage 1 steady-flight model with airspeed (fixed-wing with airspeed)
@@ -349,49 +371,78 @@ def _forward_solve(L, B):
 
 
 @njit(cache=True)
-def _propagate(dt, rates, f_b, va, prm, x1, P1, x2, P2, x3, P3, stage3_on, F1, Q1, W1, A1, F3, Q3, W3, A3):
-    """All three stages over ``dt`` [s] with the inputs held; covariances with F from the pre-step estimate."""
-    phi, theta, psi = x1[0], x1[1], x2[0]
-    # stage 1: Q = G N_g^2 G^T dt + Qc dt
-    ekf_core.transition_matrix(stage1_A(x1, rates), dt, F1)
-    for i in range(2):
-        for j in range(2):
-            Q1[i, j] = prm.qc1[i, j] * dt
-    _add_input_noise(stage1_G(x1), prm.gyro_psd, dt, Q1)
+def _propagate_states(dt, rates, f_b, va, prm, x1, x2, x3, stage3_on):
+    """The three states over ``dt`` [s] with the IMU row and airspeed held (RK4 / exact integration)."""
+    phi, theta, psi2 = x1[0], x1[1], x2[0]
+    psi_dot = euler_yaw_rate(phi, theta, rates[1], rates[2])
     _rk4_stage1(x1, rates, dt)
-    ekf_core.propagate_covariance(P1, F1, Q1, W1, A1)
-    # stage 2: A = 0 (eq 23), psi integrated exactly with the held inputs
-    x2[0] = ekf_core.wrap_pi(psi + euler_yaw_rate(phi, theta, rates[1], rates[2]) * dt)
-    _add_input_noise(stage2_G(phi, theta), prm.gyro_psd, dt, P2)
-    P2[0, 0] += prm.qc2 * dt
+    x2[0] = ekf_core.wrap_pi(psi2 + psi_dot * dt)  # A = 0 (eq 23): exact with the held inputs
     if not stage3_on:
         return
     if prm.fixed_wing_nav:
-        n3 = x3.shape[0]
-        for i in range(n3):
-            for j in range(n3):
-                Q3[i, j] = prm.qc3[i, j] * dt
-        u = np.array([va, rates[1], rates[2], phi, theta, psi])
-        ekf_core.transition_matrix(stage3_fw_A(x3, u, prm.gravity_m_s2), dt, F3)
-        # airspeed and heading as input noise, per-sample variances held over dt (math note 2.2 (ii), 3.3)
-        _add_input_noise(stage3_fw_G(x3, u, prm.gravity_m_s2), np.array([prm.airspeed_var, P2[0, 0]]), dt * dt,
-                         Q3)
-        _rk4_stage3_fw(x3, va, euler_yaw_rate(phi, theta, rates[1], rates[2]), psi, phi, prm.gravity_m_s2, dt)
+        psi, _, _ = corrected_heading(x3, psi2)
+        _rk4_stage3_fw(x3, va, psi_dot, psi, phi, prm.gravity_m_s2, dt)
+    else:
+        rate = stage3_mc_f(x3, ned_acceleration(phi, theta, psi2, f_b, prm.gravity_m_s2))
+        for i in range(2):  # exact for the held acceleration
+            x3[i] += (rate[i] + 0.5 * dt * rate[2 + i]) * dt
+            x3[2 + i] += rate[2 + i] * dt
+
+
+@njit(cache=True)
+def _accumulate(acc, dt, rates, f_b, va):
+    """Sum the inputs of an interval for a deferred covariance propagation: (dt, omega dt, f dt, V_a dt)."""
+    acc[0] += dt
+    for i in range(3):
+        acc[1 + i] += rates[i] * dt
+        acc[4 + i] += f_b[i] * dt
+    acc[7] += va * dt
+
+
+@njit(cache=True)
+def _flush_stage1(acc, x1_start, P1, prm, F1, Q1, W1, A1):
+    """Stage-1 covariance over the accumulated interval: F from the interval-start state and the mean rates,
+    Q = G N_g^2 G^T dt + Qc dt (math note 2.2)."""
+    dt = acc[0]
+    if dt <= 0.0:
+        return
+    rates = acc[1:4] / dt
+    ekf_core.transition_matrix(stage1_A(x1_start, rates), dt, F1)
+    for i in range(2):
+        for j in range(2):
+            Q1[i, j] = prm.qc1[i, j] * dt
+    _add_input_noise(stage1_G(x1_start), prm.gyro_psd, dt, Q1)
+    ekf_core.propagate_covariance(P1, F1, Q1, W1, A1)
+    acc[:] = 0.0
+
+
+@njit(cache=True)
+def _flush_stage3(acc, x3_start, attitude_start, P1, P2, P3, prm, F3, Q3, W3, A3):
+    """Stage-3 covariance over the accumulated interval, from the interval-start state and attitude
+    (phi, theta, psi_2) and the mean inputs."""
+    dt = acc[0]
+    if dt <= 0.0:
+        return
+    n3 = x3_start.shape[0]
+    for i in range(n3):
+        for j in range(n3):
+            Q3[i, j] = prm.qc3[i, j] * dt
+    if prm.fixed_wing_nav:
+        u = np.array((acc[7] / dt, acc[2] / dt, acc[3] / dt, attitude_start[0], attitude_start[1],
+                      attitude_start[2]))
+        ekf_core.transition_matrix(stage3_fw_A(x3_start, u, prm.gravity_m_s2), dt, F3)
+        # airspeed and stage-2 heading errors as inputs: first-order Gauss-Markov errors with the correlation
+        # time INPUT_CORRELATION_S have the low-frequency density 2 sigma^2 T (math note 3.3)
+        _add_input_noise(stage3_fw_G(x3_start, u, prm.gravity_m_s2), np.array((prm.airspeed_var, P2[0, 0])),
+                         2.0 * INPUT_CORRELATION_S * dt, Q3)
     else:
         ekf_core.transition_matrix(prm.a3_multicopter, dt, F3)
         # accelerometer density (rotation-invariant) plus the tilt error g * delta (math note 3.4)
         velocity_var = prm.accel_psd * dt + prm.gravity_m_s2 ** 2 * max(P1[0, 0], P1[1, 1]) * dt * dt
-        for i in range(4):
-            for j in range(4):
-                Q3[i, j] = prm.qc3[i, j] * dt
         Q3[2, 2] += velocity_var
         Q3[3, 3] += velocity_var
-        # exact for the held acceleration
-        rate = stage3_mc_f(x3, ned_acceleration(phi, theta, psi, f_b, prm.gravity_m_s2))
-        for i in range(2):
-            x3[i] += (rate[i] + 0.5 * dt * rate[2 + i]) * dt
-            x3[2 + i] += rate[2 + i] * dt
     ekf_core.propagate_covariance(P3, F3, Q3, W3, A3)
+    acc[:] = 0.0
 
 
 @njit(cache=True)
@@ -505,7 +556,8 @@ def _stage3_fw_wind(t, va, vd_gps, prm, x2, P2, x3, P3, dx, ph, diag_f, diag_i, 
     vah = math.sqrt(max(va * va - vd_gps * vd_gps, 0.0))
     h, c = stage3_fw_h_wind(x3, vah, x2[0])
     R = np.zeros((2, 2))
-    _add_input_noise(stage3_fw_wind_input_jacobian(vah, x2[0]), np.array([prm.airspeed_var, P2[0, 0]]), 1.0, R)
+    _add_input_noise(stage3_fw_wind_input_jacobian(x3, vah, x2[0]), np.array((prm.airspeed_var, P2[0, 0])), 1.0,
+                     R)
     R[0, 0] += prm.wind_pseudo_var
     R[1, 1] += prm.wind_pseudo_var
     _whitened_update(t, WIND, x3, P3, -h, c, R, math.inf, dx, ph, diag_f, diag_i, counters)
@@ -599,11 +651,15 @@ def _output_row(t, x1, P1, x2, P2, x3, P3, stage3_on, fixed_wing_nav, height, ve
     row[O_PN_STD] = math.sqrt(P3[0, 0])
     row[O_PE_STD] = math.sqrt(P3[1, 1])
     if fixed_wing_nav:
+        # heading corrected by the stage-3 deviation estimate (its correlation with stage 2 is not tracked)
+        psi, _, dpsi_ddev = corrected_heading(x3, x2[0])
+        row[O_YAW] = ekf_core.wrap_pi(psi)
+        row[O_YAW_STD] = math.sqrt(P2[0, 0] + _sandwich(np.array((dpsi_ddev,)), P3[I_DEVIATION:, I_DEVIATION:])[0, 0])
         c, s, vg = math.cos(x3[3]), math.sin(x3[3]), x3[2]
         row[O_VN] = vg * c
         row[O_VE] = vg * s
         # first-order propagation of the (V_g, chi) covariance to (v_n, v_e)
-        cov = _sandwich(np.array([[c, -vg * s], [s, vg * c]]), P3[2:4, 2:4])
+        cov = _sandwich(np.array(((c, -vg * s), (s, vg * c))), P3[2:4, 2:4])
         row[O_VN_STD] = math.sqrt(max(cov[0, 0], 0.0))
         row[O_VE_STD] = math.sqrt(max(cov[1, 1], 0.0))
         row[O_WN] = x3[4]
@@ -667,8 +723,10 @@ def run_kernel(imu_t, imu_gyro, imu_accel, ev_t, ev_kind, ev_imu, ev_val, ev_var
     x1_safe, x2_safe, x3_safe = x1.copy(), x2.copy(), x3.copy()
     row = np.empty(out.shape[1])
     stage3_on = False
-    # stage-1 averaging over the update interval: sum of f dt, omega dt, and dt
-    f_sum, w_sum, sum_dt = np.zeros(3), np.zeros(3), 0.0
+    # input sums (dt, omega dt, f dt, V_a dt) of the accelerometer update interval and of the deferred stage-1 and
+    # stage-3 covariance propagations, with the states and attitude at the start of those intervals
+    acc_meas, acc1, acc3 = np.zeros(8), np.zeros(8), np.zeros(8)
+    x1_start, x3_start, attitude_start = x1.copy(), x3.copy(), np.zeros(3)
     next_accel_t = imu_t[0]
     # low-passed inputs and their sample times
     va, va_t = 0.0, -math.inf
@@ -691,11 +749,23 @@ def run_kernel(imu_t, imu_gyro, imu_accel, ev_t, ev_kind, ev_imu, ev_val, ev_var
             if t_next > t:
                 dt = t_next - t
                 va_in = va if t - va_t < STALE_AFTER_S else 0.0
-                _propagate(dt, rates, f_b, va_in, prm, x1, P1, x2, P2, x3, P3, stage3_on, F1, Q1, W1, A1, F3, Q3,
-                           W3, A3)
-                f_sum += f_b * dt
-                w_sum += rates * dt
-                sum_dt += dt
+                if acc1[0] == 0.0:
+                    x1_start[:] = x1
+                if stage3_on and acc3[0] == 0.0:
+                    x3_start[:] = x3
+                    attitude_start[0], attitude_start[1], attitude_start[2] = x1[0], x1[1], x2[0]
+                # stage 2 covariance (A = 0): P += G N_g^2 G^T dt + q dt at the pre-step roll and pitch
+                _add_input_noise(stage2_G(x1[0], x1[1]), prm.gyro_psd, dt, P2)
+                P2[0, 0] += prm.qc2 * dt
+                _propagate_states(dt, rates, f_b, va_in, prm, x1, x2, x3, stage3_on)
+                _accumulate(acc_meas, dt, rates, f_b, va_in)
+                _accumulate(acc1, dt, rates, f_b, va_in)
+                if acc1[0] >= prm.covariance_dt_s:
+                    _flush_stage1(acc1, x1_start, P1, prm, F1, Q1, W1, A1)
+                if stage3_on:
+                    _accumulate(acc3, dt, rates, f_b, va_in)
+                    if acc3[0] >= prm.covariance_dt_s:
+                        _flush_stage3(acc3, x3_start, attitude_start, P1, P2, P3, prm, F3, Q3, W3, A3)
                 t = t_next
             if not at_event:
                 break
@@ -703,6 +773,11 @@ def run_kernel(imu_t, imu_gyro, imu_accel, ev_t, ev_kind, ev_imu, ev_val, ev_var
             values = ev_val[ie]
             variances = ev_var[ie]
             if kind == OUTPUT:
+                # divergence check at the output rate: never a non-finite output row (reset to the last healthy)
+                _check_health(x1, P1, x1_safe, prm.p1_0, counters)
+                _check_health(x2, P2, x2_safe, prm.p2_0, counters)
+                if stage3_on:
+                    _check_health(x3, P3, x3_safe, prm.p3_0, counters)
                 _output_row(t, x1, P1, x2, P2, x3, P3, stage3_on, prm.fixed_wing_nav, height, vertical_speed, row)
                 ekf_core.record_output(out, n_out, row)
                 n_out += 1
@@ -730,6 +805,7 @@ def run_kernel(imu_t, imu_gyro, imu_accel, ev_t, ev_kind, ev_imu, ev_val, ev_var
                 gps_pos_t = t
                 gps_pos[:] = values[:2]
                 gps_pos_var[:] = variances[:2]
+                _flush_stage3(acc3, x3_start, attitude_start, P1, P2, P3, prm, F3, Q3, W3, A3)
                 if stage3_on and t - gps_accept_t > prm.gps_reset_after_s:
                     # (re)acquisition: position to GPS, variances to R, cross-covariances zeroed (math note 2.3)
                     for i in range(2):
@@ -776,33 +852,30 @@ def run_kernel(imu_t, imu_gyro, imu_accel, ev_t, ev_kind, ev_imu, ev_val, ev_var
                             P3[i, i] = max(P3[i, i], gps_pos_var[i])
                         _stage3_init_velocity(values, variances, prm, x3, P3)
                         x3_safe[:] = x3
+                        acc3[:] = 0.0
                         stage3_on = True
                         gps_accept_t = t
                 elif gps_reset_epoch == t:
                     _stage3_init_velocity(values, variances, prm, x3, P3)
                 else:
+                    _flush_stage3(acc3, x3_start, attitude_start, P1, P2, P3, prm, F3, Q3, W3, A3)
                     _stage3_gps_velocity(t, values, variances, prm, x3, P3, H3, dx3, ph3, diag_f, diag_i, counters)
                     _repair(P3, prm.max_var3, W3, counters)
             ie += 1
         # stage 1 at the accelerometer update rate, with the inputs averaged over the interval
-        if t >= next_accel_t and sum_dt > 0.0:
+        if t >= next_accel_t and acc_meas[0] > 0.0:
             if abs(x1[1]) > PITCH_GUARD_RAD:
                 counters[C_PITCH_GUARD] += 1
             else:
-                va_in = va if t - va_t < STALE_AFTER_S else 0.0
+                _flush_stage1(acc1, x1_start, P1, prm, F1, Q1, W1, A1)
                 use_gps_acc = prm.gps_acceleration and t - gps_vel_t < STALE_AFTER_S
                 accel_n = gps_acc if use_gps_acc else np.zeros(3)
-                _stage1_update(t, f_sum / sum_dt, w_sum / sum_dt, va_in, accel_n, prm, x1, P1, x2, dx1, ph1, diag_f,
-                               diag_i, counters)
+                mean = acc_meas / acc_meas[0]
+                _stage1_update(t, mean[4:7], mean[1:4], mean[7], accel_n, prm, x1, P1, x2, dx1, ph1, diag_f, diag_i,
+                               counters)
                 _repair(P1, prm.max_var1, W1, counters)
-            f_sum[:] = 0.0
-            w_sum[:] = 0.0
-            sum_dt = 0.0
+            acc_meas[:] = 0.0
             next_accel_t = max(next_accel_t + prm.accel_update_dt_s, t + 0.5 * prm.accel_update_dt_s)
-        _check_health(x1, P1, x1_safe, prm.p1_0, counters)
-        _check_health(x2, P2, x2_safe, prm.p2_0, counters)
-        if stage3_on:
-            _check_health(x3, P3, x3_safe, prm.p3_0, counters)
     counters[C_OUTPUTS] = n_out
 
 
@@ -831,7 +904,8 @@ def kernel_setup(inputs: ReplayInputs, config: EstimatorConfig, options: ThreeSt
     fixed_wing_nav = plan.fixed_wing and plan.has_airspeed
     absolute_yaw = plan.has_mag or plan.has_sun or align.yaw_source != "none"
     tables = {"stage1": stage1_states(config), "stage2": stage2_states(config, absolute_yaw=absolute_yaw),
-              "stage3": stage3_fixed_wing_states(config) if fixed_wing_nav else stage3_multicopter_states(config)}
+              "stage3": (stage3_fixed_wing_states(config, options) if fixed_wing_nav
+                         else stage3_multicopter_states(config))}
     n3 = len(tables["stage3"])
     accel_var = np.full(3, noise.accel_noise_m_s2_sqrt_hz ** 2 * options.accel_update_rate_hz)
     accel_var[1] *= options.accel_tau
@@ -839,11 +913,13 @@ def kernel_setup(inputs: ReplayInputs, config: EstimatorConfig, options: ThreeSt
     max_var3 = np.full(n3, 1e12)
     if fixed_wing_nav:
         max_var3[3] = angle_cap
+        max_var3[I_DEVIATION:] = angle_cap
     gates = config.gates
     params = KernelParams(
         gravity_m_s2=inputs.gravity_m_s2, gyro_bias_rad_s=np.asarray(align.gyro_bias_rad_s, dtype=float),
         gyro_psd=np.full(3, noise.gyro_noise_rad_s_sqrt_hz ** 2), accel_psd=noise.accel_noise_m_s2_sqrt_hz ** 2,
-        accel_var=accel_var, accel_update_dt_s=1.0 / options.accel_update_rate_hz, accel_gate=options.accel_gate,
+        accel_var=accel_var, accel_update_dt_s=1.0 / options.accel_update_rate_hz,
+        covariance_dt_s=1.0 / config.timing.covariance_rate_hz, accel_gate=options.accel_gate,
         manoeuvre_threshold_m_s2=options.manoeuvre_threshold_m_s2,
         airspeed_model=plan.fixed_wing and plan.has_airspeed,
         gps_acceleration=options.gps_acceleration and plan.has_gps and not plan.has_airspeed,

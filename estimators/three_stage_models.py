@@ -17,8 +17,11 @@ Stages
    GPS-derived acceleration a_n (a_n = 0: gravity only, the multicopter / no-airspeed model, math note 7.1).
 2. heading: x = psi, u = (phi, theta, q, r); z = a unit reference vector in body axes (magnetometer vs WMM field,
    or the photocell sun vector vs the SPA sun direction): h = C_bn(phi, theta, psi) v_n (eq 24/25 corrected).
-3. navigation, fixed-wing: x = (p_n, p_e, V_g, chi, w_n, w_e), u = (V_a, q, r, phi, theta, psi) (eq 26-33
-   corrected); multicopter / no-airspeed: x = (p_n, p_e, v_n, v_e) driven by the NED acceleration (math note 3.4).
+3. navigation, fixed-wing: x = (p_n, p_e, V_g, chi, w_n, w_e, dev_a, dev_b, dev_c), u = (V_a, q, r, phi, theta,
+   psi_2) (eq 26-33 corrected) with the heading psi = psi_2 - (dev_a + dev_b sin psi_2 + dev_c cos psi_2): the
+   stage-2 heading corrected by a compass-deviation model, observable through the wind triangle in turns (B&M carry
+   psi itself as a 7th state, math note 3.3 / 7.2); multicopter / no-airspeed: x = (p_n, p_e, v_n, v_e) driven by
+   the NED acceleration (math note 3.4).
 """
 
 from __future__ import annotations
@@ -120,7 +123,7 @@ def body_vector_and_euler_jacobian(v_n, phi, theta, psi):
             h[i] += r[j, i] * v_n[j]
     cph, sph = np.cos(phi), np.sin(phi)
     cth, sth = np.cos(theta), np.sin(theta)
-    w = np.array([[1.0, 0.0, -sth], [0.0, cph, sph * cth], [0.0, -sph, cph * cth]])
+    w = np.array(((1.0, 0.0, -sth), (0.0, cph, sph * cth), (0.0, -sph, cph * cth)))
     jac = np.empty((3, 3))
     for j in range(3):
         jac[0, j] = h[1] * w[2, j] - h[2] * w[1, j]
@@ -157,7 +160,7 @@ def stage1_f(x, rates):
         (phi_dot, theta_dot) [rad/s].
     """
     phi_dot, theta_dot = stage1_rates(x[0], x[1], rates[0], rates[1], rates[2])
-    return np.array([phi_dot, theta_dot])
+    return np.array((phi_dot, theta_dot))
 
 
 @njit(cache=True)
@@ -184,7 +187,7 @@ def stage1_A(x, rates):
 def stage1_G(x):
     """df/d(p, q, r) of :func:`stage1_f` (gyro input-noise Jacobian), shape (2, 3)."""
     sph, cph, tth = np.sin(x[0]), np.cos(x[0]), np.tan(x[1])
-    return np.array([[1.0, sph * tth, cph * tth], [0.0, cph, -sph]])
+    return np.array(((1.0, sph * tth, cph * tth), (0.0, cph, -sph)))
 
 
 @njit(cache=True)
@@ -214,9 +217,9 @@ def stage1_h_airspeed(x, rates, airspeed_m_s, gravity_m_s2):
     sth, cth = np.sin(x[1]), np.cos(x[1])
     p, q, r = rates[0], rates[1], rates[2]
     va, g = airspeed_m_s, gravity_m_s2
-    return np.array([q * va * sth + g * sth,
+    return np.array((q * va * sth + g * sth,
                      r * va * cth - p * va * sth - g * cth * sph,
-                     -q * va * cth - g * cth * cph])
+                     -q * va * cth - g * cth * cph))
 
 
 @njit(cache=True)
@@ -273,7 +276,7 @@ def stage1_h_acceleration(x, yaw_rad, accel_ned_m_s2, gravity_m_s2):
 def stage2_G(phi, theta):
     """d psi_dot / d(p, q, r) (gyro input-noise Jacobian of eq 22), shape (1, 3); A = 0 (eq 23)."""
     cth = np.cos(theta)
-    return np.array([[0.0, np.sin(phi) / cth, np.cos(phi) / cth]])
+    return np.array(((0.0, np.sin(phi) / cth, np.cos(phi) / cth),))
 
 
 @njit(cache=True)
@@ -303,8 +306,12 @@ def stage2_h(yaw_rad, phi, theta, ref_n):
 
 
 # --------------------------------------------------------------------------------------------------------------
-# Stage 3, fixed-wing mode: x = (p_n, p_e, V_g, chi, w_n, w_e)
+# Stage 3, fixed-wing mode: x = (p_n, p_e, V_g, chi, w_n, w_e, dev_a, dev_b, dev_c)
 # --------------------------------------------------------------------------------------------------------------
+#: Number of stage-3 fixed-wing states.
+N_STAGE3_FW = 9
+#: Index of the first heading-deviation coefficient in the stage-3 fixed-wing state.
+I_DEVIATION = 6
 
 
 @njit(cache=True)
@@ -316,40 +323,74 @@ def _inverse_speed(vg):
 
 
 @njit(cache=True)
-def stage3_fw_f(x, u, gravity_m_s2):
-    """Navigation kinematics with the coordinated-turn course model (eq 26-29 corrected, T12/T13).
+def corrected_heading(x, yaw2_rad):
+    """Heading corrected by the deviation model, psi = psi_2 - (a + b sin psi_2 + c cos psi_2), and its
+    derivatives.
+
+    The stage-2 heading error of a magnetometer with a body-fixed horizontal field error (hard iron, and the
+    vertical field seen through a stage-1 tilt error) is a constant plus a sinusoid of the heading: the compass
+    deviation of a classical compass swing.
 
     Parameters
     ----------
-    x : ndarray, shape (6,)
-        (p_n [m], p_e [m], V_g [m/s], chi [rad], w_n [m/s], w_e [m/s]).
+    x : ndarray, shape (9,)
+        Stage-3 fixed-wing state; ``x[6:9]`` = (a, b, c) [rad].
+    yaw2_rad : float
+        Stage-2 heading psi_2 [rad].
+
+    Returns
+    -------
+    psi : float
+        Corrected heading [rad].
+    dpsi_dyaw2 : float
+        d psi / d psi_2 [-].
+    dpsi_ddev : tuple of 3 float
+        d psi / d(a, b, c) [-].
+    """
+    s, c = np.sin(yaw2_rad), np.cos(yaw2_rad)
+    dev_a, dev_b, dev_c = x[I_DEVIATION], x[I_DEVIATION + 1], x[I_DEVIATION + 2]
+    return yaw2_rad - (dev_a + dev_b * s + dev_c * c), 1.0 - dev_b * c + dev_c * s, (-1.0, -s, -c)
+
+
+@njit(cache=True)
+def stage3_fw_f(x, u, gravity_m_s2):
+    """Navigation kinematics with the coordinated-turn course model (eq 26-29 corrected, T12/T13).
+
+    The heading is the stage-2 heading corrected by the deviation states (:func:`corrected_heading`); with zero
+    initial and process variance for them it stays the stage-2 heading and this is the paper's 6-state filter.
+
+    Parameters
+    ----------
+    x : ndarray, shape (9,)
+        (p_n [m], p_e [m], V_g [m/s], chi [rad], w_n [m/s], w_e [m/s], dev_a, dev_b, dev_c [rad]).
     u : ndarray, shape (6,)
-        (V_a [m/s], q [rad/s], r [rad/s], phi [rad], theta [rad], psi [rad]).
+        (V_a [m/s], q [rad/s], r [rad/s], phi [rad], theta [rad], psi_2 [rad]).
     gravity_m_s2 : float
         Local gravity [m/s^2].
 
     Returns
     -------
-    ndarray, shape (6,)
-        State derivative.
+    ndarray, shape (9,)
+        State derivative (wind and deviation: 0).
     """
     psi_dot = euler_yaw_rate(u[3], u[4], u[1], u[2])
-    out = np.zeros(6)
-    out[0], out[1], out[2], out[3] = stage3_fw_rates(x[2], x[3], x[4], x[5], u[0], psi_dot, u[5], u[3],
+    psi, _, _ = corrected_heading(x, u[5])
+    out = np.zeros(N_STAGE3_FW)
+    out[0], out[1], out[2], out[3] = stage3_fw_rates(x[2], x[3], x[4], x[5], u[0], psi_dot, psi, u[3],
                                                      gravity_m_s2)
     return out
 
 
 @njit(cache=True)
 def stage3_fw_rates(vg, chi, wn, we, va, psi_dot, psi, phi, gravity_m_s2):
-    """Scalar form of :func:`stage3_fw_f`: (p_n_dot, p_e_dot, V_g_dot, chi_dot) (the wind is constant).
+    """Scalar form of :func:`stage3_fw_f`: (p_n_dot, p_e_dot, V_g_dot, chi_dot).
 
     Parameters
     ----------
     vg, chi, wn, we : float
         Ground speed [m/s], course [rad], wind north/east [m/s].
     va, psi_dot, psi, phi : float
-        Airspeed [m/s], heading rate [rad/s], heading [rad], roll [rad].
+        Airspeed [m/s], heading rate [rad/s], (corrected) heading [rad], roll [rad].
     gravity_m_s2 : float
     """
     inv_vg, _ = _inverse_speed(vg)
@@ -358,15 +399,27 @@ def stage3_fw_rates(vg, chi, wn, we, va, psi_dot, psi, phi, gravity_m_s2):
 
 
 @njit(cache=True)
-def stage3_fw_A(x, u, gravity_m_s2):
-    """df/dx of :func:`stage3_fw_f`, shape (6, 6) (eq 30 corrected, T14)."""
+def _heading_derivatives(x, u, psi, gravity_m_s2):
+    """d(V_g_dot, chi_dot)/dpsi at the corrected heading ``psi``."""
     vg, chi, wn, we = x[2], x[3], x[4], x[5]
-    va, q, r, phi, theta, psi = u[0], u[1], u[2], u[3], u[4], u[5]
+    va, phi = u[0], u[3]
+    inv_vg, _ = _inverse_speed(vg)
+    psi_dot = euler_yaw_rate(phi, u[4], u[1], u[2])
+    return (-va * psi_dot * (wn * np.cos(psi) + we * np.sin(psi)) * inv_vg,
+            gravity_m_s2 * np.tan(phi) * np.sin(chi - psi) * inv_vg)
+
+
+@njit(cache=True)
+def stage3_fw_A(x, u, gravity_m_s2):
+    """df/dx of :func:`stage3_fw_f`, shape (9, 9) (eq 30 corrected, T14, plus the deviation columns)."""
+    vg, chi, wn, we = x[2], x[3], x[4], x[5]
+    va, q, r, phi, theta = u[0], u[1], u[2], u[3], u[4]
+    psi, _, dpsi_ddev = corrected_heading(x, u[5])
     inv_vg, dinv_vg = _inverse_speed(vg)
     psi_dot = euler_yaw_rate(phi, theta, q, r)
     cps, sps = np.cos(psi), np.sin(psi)
     turn = gravity_m_s2 * np.tan(phi)
-    a = np.zeros((6, 6))
+    a = np.zeros((N_STAGE3_FW, N_STAGE3_FW))
     a[0, 2] = np.cos(chi)
     a[0, 3] = -vg * np.sin(chi)
     a[1, 2] = np.sin(chi)
@@ -376,21 +429,25 @@ def stage3_fw_A(x, u, gravity_m_s2):
     a[2, 5] = va * psi_dot * cps * inv_vg
     a[3, 2] = turn * np.cos(chi - psi) * dinv_vg
     a[3, 3] = -turn * np.sin(chi - psi) * inv_vg
+    dvg_dpsi, dchi_dpsi = _heading_derivatives(x, u, psi, gravity_m_s2)
+    for j in range(3):
+        a[2, I_DEVIATION + j] = dvg_dpsi * dpsi_ddev[j]
+        a[3, I_DEVIATION + j] = dchi_dpsi * dpsi_ddev[j]
     return a
 
 
 @njit(cache=True)
 def stage3_fw_G(x, u, gravity_m_s2):
-    """df/d(V_a, psi) of :func:`stage3_fw_f` (input-noise Jacobian for airspeed and stage-2 heading), (6, 2)."""
-    vg, chi, wn, we = x[2], x[3], x[4], x[5]
-    va, q, r, phi, theta, psi = u[0], u[1], u[2], u[3], u[4], u[5]
+    """df/d(V_a, psi_2) of :func:`stage3_fw_f` (input-noise Jacobian for airspeed and stage-2 heading), (9, 2)."""
+    vg, wn, we = x[2], x[4], x[5]
+    psi, dpsi_dyaw2, _ = corrected_heading(x, u[5])
     inv_vg, _ = _inverse_speed(vg)
-    psi_dot = euler_yaw_rate(phi, theta, q, r)
-    cps, sps = np.cos(psi), np.sin(psi)
-    g = np.zeros((6, 2))
-    g[2, 0] = psi_dot * (we * cps - wn * sps) * inv_vg
-    g[2, 1] = -va * psi_dot * (wn * cps + we * sps) * inv_vg
-    g[3, 1] = gravity_m_s2 * np.tan(phi) * np.sin(chi - psi) * inv_vg
+    psi_dot = euler_yaw_rate(u[3], u[4], u[1], u[2])
+    dvg_dpsi, dchi_dpsi = _heading_derivatives(x, u, psi, gravity_m_s2)
+    g = np.zeros((N_STAGE3_FW, 2))
+    g[2, 0] = psi_dot * (we * np.cos(psi) - wn * np.sin(psi)) * inv_vg
+    g[2, 1] = dvg_dpsi * dpsi_dyaw2
+    g[3, 1] = dchi_dpsi * dpsi_dyaw2
     return g
 
 
@@ -400,52 +457,57 @@ def stage3_fw_h_wind(x, air_speed_h_m_s, yaw_rad):
 
     Parameters
     ----------
-    x : ndarray, shape (6,)
+    x : ndarray, shape (9,)
         Stage-3 fixed-wing state.
     air_speed_h_m_s : float
         Horizontal air-relative speed V_ah [m/s].
     yaw_rad : float
-        Heading psi [rad].
+        Stage-2 heading psi_2 [rad] (the model uses the corrected heading psi).
 
     Returns
     -------
     h : ndarray, shape (2,)
         (V_ah c_psi + w_n - V_g c_chi, V_ah s_psi + w_e - V_g s_chi) [m/s].
-    c : ndarray, shape (2, 6)
-        dh/dx (eq 33 corrected, T15).
+    c : ndarray, shape (2, 9)
+        dh/dx (eq 33 corrected, T15, plus the deviation columns).
     """
     vg, chi = x[2], x[3]
+    psi, _, dpsi_ddev = corrected_heading(x, yaw_rad)
     cch, sch = np.cos(chi), np.sin(chi)
-    h = np.array([air_speed_h_m_s * np.cos(yaw_rad) + x[4] - vg * cch,
-                  air_speed_h_m_s * np.sin(yaw_rad) + x[5] - vg * sch])
-    c = np.zeros((2, 6))
+    cps, sps = np.cos(psi), np.sin(psi)
+    h = np.array((air_speed_h_m_s * cps + x[4] - vg * cch, air_speed_h_m_s * sps + x[5] - vg * sch))
+    c = np.zeros((2, N_STAGE3_FW))
     c[0, 2] = -cch
     c[0, 3] = vg * sch
     c[0, 4] = 1.0
     c[1, 2] = -sch
     c[1, 3] = -vg * cch
     c[1, 5] = 1.0
+    for j in range(3):
+        c[0, I_DEVIATION + j] = -air_speed_h_m_s * sps * dpsi_ddev[j]
+        c[1, I_DEVIATION + j] = air_speed_h_m_s * cps * dpsi_ddev[j]
     return h, c
 
 
 @njit(cache=True)
-def stage3_fw_wind_input_jacobian(air_speed_h_m_s, yaw_rad):
-    """d h_wind / d(V_ah, psi), shape (2, 2): maps airspeed and heading variances into the pseudo R."""
-    cps, sps = np.cos(yaw_rad), np.sin(yaw_rad)
-    return np.array([[cps, -air_speed_h_m_s * sps], [sps, air_speed_h_m_s * cps]])
+def stage3_fw_wind_input_jacobian(x, air_speed_h_m_s, yaw_rad):
+    """d h_wind / d(V_ah, psi_2), shape (2, 2): maps airspeed and heading variances into the pseudo R."""
+    psi, dpsi_dyaw2, _ = corrected_heading(x, yaw_rad)
+    cps, sps = np.cos(psi), np.sin(psi)
+    return np.array(((cps, -air_speed_h_m_s * sps * dpsi_dyaw2), (sps, air_speed_h_m_s * cps * dpsi_dyaw2)))
 
 
 @njit(cache=True)
 def stage3_fw_h_gps_velocity(x):
-    """GPS NED horizontal velocity model (v_n, v_e) = V_g (c_chi, s_chi) and its Jacobian (2, 6)."""
+    """GPS NED horizontal velocity model (v_n, v_e) = V_g (c_chi, s_chi) and its Jacobian (2, 9)."""
     vg, chi = x[2], x[3]
     cch, sch = np.cos(chi), np.sin(chi)
-    c = np.zeros((2, 6))
+    c = np.zeros((2, N_STAGE3_FW))
     c[0, 2] = cch
     c[0, 3] = -vg * sch
     c[1, 2] = sch
     c[1, 3] = vg * cch
-    return np.array([vg * cch, vg * sch]), c
+    return np.array((vg * cch, vg * sch)), c
 
 
 # --------------------------------------------------------------------------------------------------------------
@@ -468,7 +530,7 @@ def ned_acceleration(phi, theta, psi, specific_force_b, gravity_m_s2):
 @njit(cache=True)
 def stage3_mc_f(x, accel_ne_m_s2):
     """Constant-acceleration kinematics (p_n, p_e, v_n, v_e)_dot = (v_n, v_e, a_n, a_e); A = [[0, I], [0, 0]]."""
-    return np.array([x[2], x[3], accel_ne_m_s2[0], accel_ne_m_s2[1]])
+    return np.array((x[2], x[3], accel_ne_m_s2[0], accel_ne_m_s2[1]))
 
 
 @njit(cache=True)

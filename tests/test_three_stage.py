@@ -150,7 +150,7 @@ def test_stage2_h_and_jacobians(rng):
 
 def random_fw_state(rng):
     x = np.array([rng.normal(0, 100), rng.normal(0, 100), rng.uniform(5, 30), rng.uniform(-np.pi, np.pi),
-                  rng.normal(0, 5), rng.normal(0, 5)])
+                  rng.normal(0, 5), rng.normal(0, 5), rng.normal(0, 0.1), rng.normal(0, 0.1), rng.normal(0, 0.1)])
     phi, theta, psi = random_attitude(rng)
     u = np.array([rng.uniform(5, 30), rng.normal(0, 0.3), rng.normal(0, 0.3), phi, theta, psi])
     return x, u
@@ -180,9 +180,9 @@ def test_stage3_fw_ground_speed_rate_is_wind_triangle_derivative(rng):
     """V_g_dot of f equals d/dt |V_a (c_psi, s_psi) + w| with psi_dot from the gyro (eq 27)."""
     for _ in range(N_RANDOM):
         x, u = random_fw_state(rng)
-        va, psi = u[0], u[5]
-        wind = x[4:] * min(1.0, 0.5 * va / np.linalg.norm(x[4:]))  # keep V_g > V_min: no frozen 1/V_g
-        x[4:] = wind
+        va, psi = u[0], m.corrected_heading(x, u[5])[0]
+        wind = x[4:6] * min(1.0, 0.5 * va / np.linalg.norm(x[4:6]))  # keep V_g > V_min: no frozen 1/V_g
+        x[4:6] = wind
         psi_dot = m.euler_yaw_rate(u[3], u[4], u[1], u[2])
         ground = va * np.array([np.cos(psi), np.sin(psi)]) + wind
         x[2] = np.linalg.norm(ground)
@@ -194,11 +194,11 @@ def test_stage3_fw_ground_speed_rate_is_wind_triangle_derivative(rng):
 
 def test_stage3_fw_low_speed_guard_is_consistent():
     """Below V_min the 1/V_g factors freeze: f stays finite and A's V_g column has no 1/V_g^2 terms."""
-    x = np.array([0.0, 0.0, 0.5, 0.3, 1.0, -2.0])
+    x = np.array([0.0, 0.0, 0.5, 0.3, 1.0, -2.0, 0.1, -0.05, 0.03])
     u = np.array([12.0, 0.1, 0.2, 0.3, 0.05, 0.4])
     np.testing.assert_allclose(m.stage3_fw_A(x, u, GRAVITY),
                                numerical_jacobian(m.stage3_fw_f, x, u, GRAVITY), rtol=RTOL, atol=ATOL)
-    assert np.all(np.isfinite(m.stage3_fw_f(np.array([0, 0, 0.0, 0, 0, 0]), u, GRAVITY)))
+    assert np.all(np.isfinite(m.stage3_fw_f(np.zeros(m.N_STAGE3_FW), u, GRAVITY)))
 
 
 def test_stage3_fw_wind_pseudo_measurement(rng):
@@ -209,12 +209,37 @@ def test_stage3_fw_wind_pseudo_measurement(rng):
         np.testing.assert_allclose(c, numerical_jacobian(lambda s, *a: m.stage3_fw_h_wind(s, *a)[0], x, vah, psi),
                                    rtol=RTOL, atol=ATOL)
         numerical_inputs = numerical_jacobian(lambda w, s: m.stage3_fw_h_wind(s, w[0], w[1])[0], [vah, psi], x)
-        np.testing.assert_allclose(m.stage3_fw_wind_input_jacobian(vah, psi), numerical_inputs,
+        np.testing.assert_allclose(m.stage3_fw_wind_input_jacobian(x, vah, psi), numerical_inputs,
                                    rtol=RTOL, atol=ATOL)
-        # an exact wind triangle gives a zero residual
-        x[2:4] = [np.hypot(vah * np.cos(psi) + x[4], vah * np.sin(psi) + x[5]),
-                  np.arctan2(vah * np.sin(psi) + x[5], vah * np.cos(psi) + x[4])]
+        # an exact wind triangle (at the corrected heading) gives a zero residual
+        heading = m.corrected_heading(x, psi)[0]
+        x[2:4] = [np.hypot(vah * np.cos(heading) + x[4], vah * np.sin(heading) + x[5]),
+                  np.arctan2(vah * np.sin(heading) + x[5], vah * np.cos(heading) + x[4])]
         np.testing.assert_allclose(m.stage3_fw_h_wind(x, vah, psi)[0], 0.0, atol=1e-12)
+
+
+def test_corrected_heading_derivatives(rng):
+    for _ in range(N_RANDOM):
+        x, u = random_fw_state(rng)
+        _, dpsi_dyaw2, dpsi_ddev = m.corrected_heading(x, u[5])
+        numerical = numerical_jacobian(lambda s, x: [m.corrected_heading(x, s[0])[0]], [u[5]], x)
+        np.testing.assert_allclose(dpsi_dyaw2, numerical[0, 0], rtol=RTOL)
+        numerical = numerical_jacobian(lambda d, x, y: [m.corrected_heading(np.r_[x[:6], d], y)[0]], x[6:], x, u[5])
+        np.testing.assert_allclose(dpsi_ddev, numerical[0], rtol=RTOL, atol=ATOL)
+
+
+def test_stage3_fw_zero_deviation_is_the_paper_model(rng):
+    """With zero deviation the model is the paper's 6-state one; a deviation acts as the corrected heading."""
+    for _ in range(N_RANDOM):
+        x, u = random_fw_state(rng)
+        shifted = u.copy()
+        shifted[5] = m.corrected_heading(x, u[5])[0]
+        unbiased = x.copy()
+        unbiased[6:] = 0.0
+        np.testing.assert_allclose(m.stage3_fw_f(x, u, GRAVITY), m.stage3_fw_f(unbiased, shifted, GRAVITY),
+                                   rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(m.stage3_fw_h_wind(x, u[0], u[5])[0],
+                                   m.stage3_fw_h_wind(unbiased, u[0], shifted[5])[0], rtol=1e-12, atol=1e-12)
 
 
 def test_stage3_fw_gps_velocity_model(rng):
@@ -251,7 +276,8 @@ def test_ned_acceleration_at_rest_is_zero(rng):
 def all_tables():
     config = EstimatorConfig()
     return [three_stage.stage1_states(config), three_stage.stage2_states(config, absolute_yaw=True),
-            three_stage.stage2_states(config, absolute_yaw=False), three_stage.stage3_fixed_wing_states(config),
+            three_stage.stage2_states(config, absolute_yaw=False),
+            three_stage.stage3_fixed_wing_states(config, three_stage.ThreeStageOptions()),
             three_stage.stage3_multicopter_states(config)]
 
 
