@@ -65,13 +65,8 @@ _SMALL_ANGLE_RAD = 1e-6
 @njit(cache=True)
 def skew(v):
     """Cross-product matrix [v]x with [v]x a = v x a, shape (3, 3)."""
-    out = np.zeros((3, 3))
-    out[0, 1] = -v[2]
-    out[0, 2] = v[1]
-    out[1, 0] = v[2]
-    out[1, 2] = -v[0]
-    out[2, 0] = -v[1]
-    out[2, 1] = v[0]
+    out = np.empty((3, 3))
+    _skew_into(v[0], v[1], v[2], out)
     return out
 
 
@@ -106,8 +101,14 @@ def quat_exp(rotvec_rad):
 @njit(cache=True)
 def quat_to_dcm(q):
     """Rotation matrix R(q) (maps body vectors into NED for the attitude quaternion), shape (3, 3)."""
-    w, x, y, z = q[0], q[1], q[2], q[3]
     out = np.empty((3, 3))
+    _dcm_into(q[0], q[1], q[2], q[3], out)
+    return out
+
+
+@njit(cache=True)
+def _dcm_into(w, x, y, z, out):
+    """Rotation matrix of the unit quaternion (w, x, y, z) written into ``out`` (3, 3)."""
     out[0, 0] = 1.0 - 2.0 * (y * y + z * z)
     out[0, 1] = 2.0 * (x * y - w * z)
     out[0, 2] = 2.0 * (x * z + w * y)
@@ -117,33 +118,54 @@ def quat_to_dcm(q):
     out[2, 0] = 2.0 * (x * z - w * y)
     out[2, 1] = 2.0 * (y * z + w * x)
     out[2, 2] = 1.0 - 2.0 * (x * x + y * y)
-    return out
 
 
 @njit(cache=True)
-def rotvec_to_dcm(rotvec_rad):
-    """Rotation matrix Exp(phi) of a rotation vector [rad] (Rodrigues)."""
-    return quat_to_dcm(quat_exp(rotvec_rad))
-
-
-@njit(cache=True)
-def right_jacobian(rotvec_rad):
-    """Right Jacobian J_r(phi) of SO(3): Exp(phi + d) ~ Exp(phi) Exp(J_r(phi) d) for small d."""
-    angle2 = rotvec_rad[0] ** 2 + rotvec_rad[1] ** 2 + rotvec_rad[2] ** 2
-    angle = np.sqrt(angle2)
-    k = skew(rotvec_rad)
+def right_jacobian_into(rx, ry, rz, out):
+    """Right Jacobian of SO(3) at ``phi = (rx, ry, rz)`` [rad] into ``out`` (3, 3):
+    ``Exp(phi + d) ~ Exp(phi) Exp(J_r d)``, ``J_r = I - c1 [phi]x + c2 [phi]x^2`` with ``c1 = (1 - cos a)/a^2``,
+    ``c2 = (a - sin a)/a^3``, ``a = |phi|`` (``[phi]x^2 = phi phi^T - a^2 I``)."""
+    angle2 = rx * rx + ry * ry + rz * rz
+    angle = math.sqrt(angle2)
     if angle < 1e-4:
         c1 = 0.5 - angle2 / 24.0
         c2 = 1.0 / 6.0 - angle2 / 120.0
     else:
-        c1 = (1.0 - np.cos(angle)) / angle2
-        c2 = (angle - np.sin(angle)) / (angle2 * angle)
-    return np.eye(3) - c1 * k + c2 * (k @ k)
+        c1 = (1.0 - math.cos(angle)) / angle2
+        c2 = (angle - math.sin(angle)) / (angle2 * angle)
+    out[0, 0] = 1.0 + c2 * (rx * rx - angle2)
+    out[1, 1] = 1.0 + c2 * (ry * ry - angle2)
+    out[2, 2] = 1.0 + c2 * (rz * rz - angle2)
+    out[0, 1] = c1 * rz + c2 * rx * ry
+    out[1, 0] = -c1 * rz + c2 * rx * ry
+    out[0, 2] = -c1 * ry + c2 * rx * rz
+    out[2, 0] = c1 * ry + c2 * rx * rz
+    out[1, 2] = c1 * rx + c2 * ry * rz
+    out[2, 1] = -c1 * rx + c2 * ry * rz
 
 
-# ----------------------------------------------------------------------------------------------------------------
-# Propagation
-# ----------------------------------------------------------------------------------------------------------------
+@njit(cache=True)
+def _matmul3_into(A, B, out):
+    """out = A B for (3, 3) matrices (plain loops: no BLAS call overhead for 3 x 3)."""
+    for i in range(3):
+        for j in range(3):
+            out[i, j] = A[i, 0] * B[0, j] + A[i, 1] * B[1, j] + A[i, 2] * B[2, j]
+
+
+@njit(cache=True)
+def _skew_into(vx, vy, vz, out):
+    """[v]x into ``out`` (3, 3)."""
+    out[0, 0] = 0.0
+    out[0, 1] = -vz
+    out[0, 2] = vy
+    out[1, 0] = vz
+    out[1, 1] = 0.0
+    out[1, 2] = -vx
+    out[2, 0] = -vy
+    out[2, 1] = vx
+    out[2, 2] = 0.0
+
+
 @njit(cache=True)
 def _quat_exp_scalars(rx, ry, rz):
     """Exp of a rotation vector [rad] as four scalars (w, x, y, z); allocation-free."""
@@ -241,28 +263,46 @@ def transition(x, gyro_rad_s, accel_m_s2, dt_s, F):
         Output. Only the non-identity blocks are written; the caller keeps the rest at the identity
         (see :func:`identity_transition`).
     """
-    omega = gyro_rad_s - x[X_BG:X_BG + 3]
-    f = accel_m_s2 - x[X_BA:X_BA + 3]
-    R = quat_to_dcm(x[X_Q:X_Q + 4])
-    half = omega * (0.5 * dt_s)
-    R_half = rotvec_to_dcm(half)
-    R_mid = R @ R_half
-    full = omega * dt_s
-    R_full_T = rotvec_to_dcm(full).T
-    J_full = right_jacobian(full)
-    a_th = -(R @ skew(R_half @ f))
-    a_bg = (R_mid @ skew(f) @ right_jacobian(half)) * (0.5 * dt_s)
+    wx = gyro_rad_s[0] - x[X_BG]
+    wy = gyro_rad_s[1] - x[X_BG + 1]
+    wz = gyro_rad_s[2] - x[X_BG + 2]
+    fx = accel_m_s2[0] - x[X_BA]
+    fy = accel_m_s2[1] - x[X_BA + 1]
+    fz = accel_m_s2[2] - x[X_BA + 2]
+    half = 0.5 * dt_s
+    work = np.empty((7, 3, 3))  # R, R_half, R_mid, Exp(omega dt), J_r(full), J_r(half), scratch
+    R, R_half, R_mid, R_full, J_full, J_half, tmp = (work[0], work[1], work[2], work[3], work[4], work[5],
+                                                      work[6])
+    _dcm_into(x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3], R)
+    hw, hx, hy, hz = _quat_exp_scalars(wx * half, wy * half, wz * half)
+    _dcm_into(hw, hx, hy, hz, R_half)
+    _matmul3_into(R, R_half, R_mid)
+    _dcm_into(*_quat_exp_scalars(wx * dt_s, wy * dt_s, wz * dt_s), R_full)
+    right_jacobian_into(wx * dt_s, wy * dt_s, wz * dt_s, J_full)
+    right_jacobian_into(wx * half, wy * half, wz * half, J_half)
+    # a_theta = -R [R_half f]x
+    yx = R_half[0, 0] * fx + R_half[0, 1] * fy + R_half[0, 2] * fz
+    yy = R_half[1, 0] * fx + R_half[1, 1] * fy + R_half[1, 2] * fz
+    yz = R_half[2, 0] * fx + R_half[2, 1] * fy + R_half[2, 2] * fz
+    _skew_into(yx, yy, yz, tmp)
+    a_th = np.empty((3, 3))
+    _matmul3_into(R, tmp, a_th)
+    # a_bg = R_mid [f]x J_r(half) dt/2 (R_half is no longer needed: reuse it as scratch)
+    _skew_into(fx, fy, fz, tmp)
+    _matmul3_into(tmp, J_half, R_half)
+    a_bg = np.empty((3, 3))
+    _matmul3_into(R_mid, R_half, a_bg)
     half_dt2 = 0.5 * dt_s * dt_s
     for i in range(3):
         F[E_P + i, E_V + i] = dt_s
         for j in range(3):
-            F[E_P + i, E_TH + j] = a_th[i, j] * half_dt2
-            F[E_P + i, E_BG + j] = a_bg[i, j] * half_dt2
+            F[E_P + i, E_TH + j] = -a_th[i, j] * half_dt2
+            F[E_P + i, E_BG + j] = a_bg[i, j] * half * half_dt2
             F[E_P + i, E_BA + j] = -R_mid[i, j] * half_dt2
-            F[E_V + i, E_TH + j] = a_th[i, j] * dt_s
-            F[E_V + i, E_BG + j] = a_bg[i, j] * dt_s
+            F[E_V + i, E_TH + j] = -a_th[i, j] * dt_s
+            F[E_V + i, E_BG + j] = a_bg[i, j] * half * dt_s
             F[E_V + i, E_BA + j] = -R_mid[i, j] * dt_s
-            F[E_TH + i, E_TH + j] = R_full_T[i, j]
+            F[E_TH + i, E_TH + j] = R_full[j, i]
             F[E_TH + i, E_BG + j] = -J_full[i, j] * dt_s
 
 
