@@ -45,6 +45,11 @@ class NoiseConfig:
     accel_bias_rw_m_s3_sqrt_hz : float
         Accelerometer bias random walk K_a [m/s^3/sqrt(Hz)]. Default 1e-3 (PX4 EKF2_ACC_B_NOISE 3e-3 / 3, same
         reasoning).
+    accel_bias_rw_z_m_s3_sqrt_hz : float or None
+        Random walk of the body-z accelerometer bias when it differs from x/y (None: the same). The effective z
+        bias of a fixed-wing changes with every pitch transition through the cross-axis sensitivity (Table 1:
+        +-2 % of the forward specific force, which changes by a few m/s^2 between climb, cruise and descent),
+        while x and y see the nearly constant -g through theirs.
     wind_rw_m_s_sqrt_s : float
         Wind random walk [m/s/sqrt(s)]. Default 0.05 (math note 3.3: (0.01-0.1 m/s)^2/s; PX4 EKF2_WIND_NSD 0.05).
     mag_bias_rw_sqrt_s : float
@@ -71,7 +76,9 @@ class NoiseConfig:
         Floor of the GPS height sigma [m].
     gps_pos_eph_scale : float
         Per-axis horizontal sigma = ``gps_pos_eph_scale * eph`` (eph is a horizontal radial accuracy; math note
-        3.3: eph / sqrt(2)).
+        3.3: eph / sqrt(2)), floored at ``gps_pos_sigma_floor_m``.
+    gps_hgt_epv_scale : float
+        Vertical sigma = ``gps_hgt_epv_scale * epv``, floored at ``gps_hgt_sigma_floor_m``.
     gps_vel_sigma_floor_m_s : float
         Floor of the GPS velocity sigma [m/s] (math note 3.3: 0.1 m/s).
     gps_vel_sigma_default_m_s : float
@@ -89,6 +96,7 @@ class NoiseConfig:
     accel_noise_m_s2_sqrt_hz: float = 0.035
     gyro_bias_rw_rad_s2_sqrt_hz: float = 1.0e-4
     accel_bias_rw_m_s3_sqrt_hz: float = 1.0e-3
+    accel_bias_rw_z_m_s3_sqrt_hz: float | None = None
     wind_rw_m_s_sqrt_s: float = 0.05
     mag_bias_rw_sqrt_s: float = 1.0e-4
     baro_bias_rw_m_sqrt_s: float = 0.01
@@ -99,6 +107,7 @@ class NoiseConfig:
     gps_pos_sigma_floor_m: float = 0.5
     gps_hgt_sigma_floor_m: float = 0.7
     gps_pos_eph_scale: float = 1.0 / math.sqrt(2.0)
+    gps_hgt_epv_scale: float = 1.0
     gps_vel_sigma_floor_m_s: float = 0.1
     gps_vel_sigma_default_m_s: float = 0.3
     mag_sigma: float = 0.03

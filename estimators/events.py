@@ -11,9 +11,10 @@ What this module decides, once, for every estimator:
 * **Measurement events** ``(time_s, kind, imu_index, values[6], variances[6])``, one row per sensor sample at the
   sensor's own sample time (``sample_time_s`` when logged, else the row time), sorted by time; ``imu_index`` is
   the IMU row whose interval contains the event, so the kernels propagate to the event time exactly (split dt),
-  update, and continue. Repeated samples (the sample time did not advance) are dropped. GPS sample times are
-  shifted back by the receiver latency: the log's ``EKF2_GPS_DELAY`` [ms] (PX4 EKF2 subtracts it from the GNSS
-  sample time, timestamp_sample included), else :data:`estimators.config.PX4_DEFAULT_GPS_DELAY_MS`. Output epochs
+  update, and continue. Repeated samples (the sample time did not advance) are dropped. GPS rows are fused at
+  their measurement time, publication time minus the receiver latency ``EKF2_GPS_DELAY`` [ms] as PX4 EKF2 does;
+  without that parameter the logged ``sample_time_s``, else the PX4 default delay
+  (:func:`gps_measurement_time_s`). Output epochs
   (``OUTPUT``) are events too, on the grid ``k / rate_hz`` of the log clock.
 * **Sensor plan**: which sensors are usable, which are skipped and why, and the degradations of math note 7
   (no airspeed -> no wind states and no airspeed; multicopter -> no fixed-wing pseudo-measurements; no GPS ->
@@ -81,6 +82,8 @@ GPS_MAX_EPH_M = 10.0
 GPS_ORIGIN_MAX_EPH_M = 5.0
 #: Magnetometer stream accepted when its median field strength lies in this range [gauss] (math note 7).
 MAG_STRENGTH_RANGE_GAUSS = (0.15, 1.0)
+#: A still window's specific-force norm may differ this much from gravity (accelerometer offset) [m/s^2].
+STILL_GRAVITY_TOLERANCE_M_S2 = 1.0
 #: A magnetometer whose inclination at the start differs more than this from the reference field is not used [deg].
 MAG_DIP_TOLERANCE_DEG = 15.0
 #: Horizontal accuracy assumed when a receiver reports none [m] (Table 1: NEO-M8N 2.5 m).
@@ -262,7 +265,9 @@ class ReplayInputs:
     gravity_m_s2 : float
         Local normal gravity at the origin [m/s^2] (math note 1.2).
     gps_delay_s : float
-        GPS latency removed from GPS sample times [s].
+        GPS latency [s] (:func:`gps_measurement_time_s`).
+    gps_time_rule : str
+        How GPS measurement times were obtained (:func:`gps_measurement_time_s`); empty without GPS.
     baro_offset_m : float
         Barometric minus GPS altitude [m] removed from the barometer (0 without GPS).
     output_time_s : ndarray
@@ -282,6 +287,7 @@ class ReplayInputs:
     mag_field_source: str
     gravity_m_s2: float
     gps_delay_s: float
+    gps_time_rule: str
     baro_offset_m: float
     output_time_s: np.ndarray
     source: str
@@ -332,8 +338,8 @@ def build_replay_inputs(flight_log: FlightLog, config: EstimatorConfig | None = 
     degradations: list[str] = []
     parts: list[tuple[np.ndarray, int, np.ndarray, np.ndarray]] = []
 
-    gps_delay_s = _gps_delay_s(flight_log, config)
-    gps = _gps_rows(flight_log, gps_delay_s, skipped)
+    gps_delay_s, delay_source = _gps_delay_s(flight_log, config)
+    gps = _gps_rows(flight_log, gps_delay_s, delay_source, skipped)
     origin = _origin(flight_log, gps)
     gravity = float(environment.local_gravity_m_s2(origin.lat_deg if origin.source == "gps" else 45.0,
                                                    origin.alt_m))
@@ -431,7 +437,8 @@ def build_replay_inputs(flight_log: FlightLog, config: EstimatorConfig | None = 
                       skipped=skipped, degradations=tuple(degradations))
     return ReplayInputs(imu=imu, events=events, origin=origin, plan=plan, alignment=alignment,
                         mag_field_ned=mag_field, mag_strength_gauss=mag_strength, mag_field_source=mag_field_source,
-                        gravity_m_s2=gravity, gps_delay_s=gps_delay_s, baro_offset_m=baro_offset_m,
+                        gravity_m_s2=gravity, gps_delay_s=gps_delay_s,
+                        gps_time_rule=gps.time_rule if gps is not None else "", baro_offset_m=baro_offset_m,
                         output_time_s=output_time_s, source=source, warnings=tuple(warnings))
 
 
@@ -517,13 +524,30 @@ def _sensor_rows(flight_log: FlightLog, stream: str, columns: tuple[str, ...], s
     return time_s, values
 
 
-def _gps_delay_s(flight_log: FlightLog, config: EstimatorConfig) -> float:
+def _gps_delay_s(flight_log: FlightLog, config: EstimatorConfig) -> tuple[float, str]:
+    """GPS latency [s] and where it comes from: ``"config"``, ``"parameter"`` (EKF2_GPS_DELAY) or ``"default"``."""
     if config.timing.gps_delay_s is not None:
-        return float(config.timing.gps_delay_s)
+        return float(config.timing.gps_delay_s), "config"
     value = flight_log.meta.parameters.get("EKF2_GPS_DELAY")
     if value is not None and math.isfinite(float(value)) and 0 <= float(value) < 1000:
-        return float(value) / 1000.0
-    return PX4_DEFAULT_GPS_DELAY_MS / 1000.0
+        return float(value) / 1000.0, "parameter"
+    return PX4_DEFAULT_GPS_DELAY_MS / 1000.0, "default"
+
+
+def gps_measurement_time_s(frame: pd.DataFrame, delay_s: float, delay_source: str) -> tuple[np.ndarray, str]:
+    """Time at which each GPS row was measured, and the rule used.
+
+    PX4 EKF2 takes the GNSS publication time (``timestamp``, our row time) minus ``EKF2_GPS_DELAY`` (EKF2.cpp
+    ``UpdateGpsSample`` and ``EstimatorInterface::setGpsData``); a logged ``timestamp_sample`` is not used by it.
+    So: with an explicit delay (configuration or the log's parameter), ``row time - delay``; without one, the
+    logged ``sample_time_s`` when present (the sensor's own measurement time), else ``row time -`` the PX4
+    default. For solarnav's simulator (``timestamp = timestamp_sample + latency`` and ``EKF2_GPS_DELAY =
+    latency``) the rules agree.
+    """
+    row_time = frame.index.to_numpy(dtype=float)
+    if delay_source == "default" and "sample_time_s" in frame.columns:
+        return _sample_time_s(frame), "sample_time_s"
+    return row_time - delay_s, f"row time - {delay_s * 1000:.0f} ms ({delay_source})"
 
 
 @dataclass(frozen=True)
@@ -536,14 +560,15 @@ class _GpsRows:
     eph_m: np.ndarray
     epv_m: np.ndarray
     speed_sigma_m_s: np.ndarray  # NaN where not reported
+    time_rule: str  # how the measurement time was obtained
 
 
-def _gps_rows(flight_log: FlightLog, delay_s: float, skipped: dict[str, str]) -> _GpsRows | None:
+def _gps_rows(flight_log: FlightLog, delay_s: float, delay_source: str, skipped: dict[str, str]) -> _GpsRows | None:
     if not flight_log.has("gps"):
         skipped["gps_pos"] = skipped["gps_vel"] = "not in the log"
         return None
     frame = flight_log["gps"]
-    time_s = _sample_time_s(frame) - delay_s
+    time_s, time_rule = gps_measurement_time_s(frame, delay_s, delay_source)
     get = lambda c: frame[c].to_numpy(dtype=float) if c in frame.columns else np.full(len(frame), np.nan)  # noqa: E731
     lat, lon, alt = get("lat_deg"), get("lon_deg"), get("alt_m")
     vel = np.column_stack([get("vn_m_s"), get("ve_m_s"), get("vd_m_s")])
@@ -561,7 +586,8 @@ def _gps_rows(flight_log: FlightLog, delay_s: float, skipped: dict[str, str]) ->
     idx = idx[_new_samples(time_s[idx])]
     speed = get("speed_accuracy_m_s")[idx]
     return _GpsRows(time_s=time_s[idx], lat_deg=lat[idx], lon_deg=lon[idx], alt_m=alt[idx], vel_ned=vel[idx],
-                    eph_m=eph[idx], epv_m=epv[idx], speed_sigma_m_s=np.where(speed > 0, speed, np.nan))
+                    eph_m=eph[idx], epv_m=epv[idx], speed_sigma_m_s=np.where(speed > 0, speed, np.nan),
+                    time_rule=time_rule)
 
 
 def _origin(flight_log: FlightLog, gps: _GpsRows | None) -> Origin:
@@ -583,7 +609,7 @@ def _gps_events(gps: _GpsRows, origin: Origin, config: EstimatorConfig):
                                                     origin.lon_deg, origin.alt_m)
     pos = np.column_stack([north, east, down])
     sigma_h = np.maximum(noise.gps_pos_eph_scale * gps.eph_m, noise.gps_pos_sigma_floor_m)
-    sigma_v = np.maximum(gps.epv_m, noise.gps_hgt_sigma_floor_m)
+    sigma_v = np.maximum(noise.gps_hgt_epv_scale * gps.epv_m, noise.gps_hgt_sigma_floor_m)
     pos_var = np.column_stack([sigma_h ** 2, sigma_h ** 2, sigma_v ** 2])
     speed_sigma = np.where(np.isfinite(gps.speed_sigma_m_s), gps.speed_sigma_m_s, noise.gps_vel_sigma_default_m_s)
     speed_sigma = np.maximum(speed_sigma, noise.gps_vel_sigma_floor_m_s)
@@ -742,20 +768,28 @@ def _merge_events(parts, imu_time_s: np.ndarray) -> MeasurementEvents:
 def still_window(imu: ImuSamples, gravity_m_s2: float, config: EstimatorConfig) -> tuple[int, int] | None:
     """Row range ``[i0, i1)`` of the first still window starting at the log start, or None.
 
-    Still means a 0.2 s moving average of the gyro below ``timing.still_gyro_rad_s`` and of the specific force
-    within ``timing.still_accel_m_s2`` of gravity; the window must start within the first second and last at least
-    ``timing.still_window_s``.
+    Still means a 0.2 s moving average of the gyro below ``timing.still_gyro_rad_s`` and a specific-force norm
+    within ``timing.still_accel_m_s2`` of its median over the first second (not of g: a MEMS accelerometer's
+    zero-g offset, up to 80 mg in Table 1, would hide every still window), that median itself within
+    :data:`STILL_GRAVITY_TOLERANCE_M_S2` of gravity. The window must start within the first second and last at
+    least ``timing.still_window_s``.
     """
     timing = config.timing
     n_avg = max(1, round(0.2 / imu.median_dt_s))
     kernel = np.ones(n_avg) / n_avg
     gyro = np.column_stack([np.convolve(imu.gyro_rad_s[:, i], kernel, mode="same") for i in range(3)])
     accel = np.column_stack([np.convolve(imu.accel_m_s2[:, i], kernel, mode="same") for i in range(3)])
-    still = ((np.linalg.norm(gyro, axis=1) < timing.still_gyro_rad_s)
-             & (np.abs(np.linalg.norm(accel, axis=1) - gravity_m_s2) < timing.still_accel_m_s2))
     # the edges of the moving average see zero padding
-    still[:n_avg // 2] = still[min(n_avg // 2, len(still) - 1)]
+    half = min(n_avg // 2, len(gyro) - 1)
+    gyro[:half], accel[:half] = gyro[half], accel[half]
+    gyro[len(gyro) - half:], accel[len(accel) - half:] = gyro[-half - 1], accel[-half - 1]
     t = imu.time_s
+    norm = np.linalg.norm(accel, axis=1)
+    reference = float(np.median(norm[t <= t[0] + 1.0]))
+    if abs(reference - gravity_m_s2) > STILL_GRAVITY_TOLERANCE_M_S2:
+        return None
+    still = ((np.linalg.norm(gyro, axis=1) < timing.still_gyro_rad_s)
+             & (np.abs(norm - reference) < timing.still_accel_m_s2))
     start_candidates = np.flatnonzero(still & (t <= t[0] + 1.0))
     if len(start_candidates) == 0:
         return None

@@ -170,8 +170,10 @@ def state_table(config: EstimatorConfig, *, accel_bias: bool, wind: bool, mag_bi
     rows += [StateSpec(n, "rad/s", rad(ini.gyro_bias_deg_s), noise.gyro_bias_rw_rad_s2_sqrt_hz)
              for n in ("bgx", "bgy", "bgz")]
     if accel_bias:
-        rows += [StateSpec(n, "m/s^2", ini.accel_bias_m_s2, noise.accel_bias_rw_m_s3_sqrt_hz)
-                 for n in ("bax", "bay", "baz")]
+        rw_z = noise.accel_bias_rw_z_m_s3_sqrt_hz
+        rows += [StateSpec(n, "m/s^2", ini.accel_bias_m_s2, noise.accel_bias_rw_m_s3_sqrt_hz) for n in ("bax", "bay")]
+        rows.append(StateSpec("baz", "m/s^2", ini.accel_bias_m_s2,
+                              noise.accel_bias_rw_m_s3_sqrt_hz if rw_z is None else rw_z))
     if wind:
         rows += [StateSpec(n, "m/s", ini.wind_m_s, noise.wind_rw_m_s_sqrt_s) for n in ("wn", "we")]
     if mag_bias:
@@ -919,6 +921,7 @@ def _assemble(inputs, k: KernelInputs, out_f, out_x, out_sx, diag_f, diag_i, cou
         "alignment": {"tilt_source": inputs.alignment.tilt_source, "yaw_source": inputs.alignment.yaw_source,
                       "still_window_s": inputs.alignment.still_window_s},
         "gps_delay_s": inputs.gps_delay_s,
+        "gps_time_rule": inputs.gps_time_rule,
         "baro_offset_m": inputs.baro_offset_m,
         "mag_field_source": inputs.mag_field_source,
         "origin": {"lat_deg": inputs.origin.lat_deg, "lon_deg": inputs.origin.lon_deg,

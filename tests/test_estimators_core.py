@@ -181,9 +181,20 @@ def test_gps_delay_from_parameter_and_default():
     gps_t = inputs.events.time_s[inputs.events.kind == events.GPS_POS]
     assert inputs.gps_delay_s == pytest.approx(0.2)
     np.testing.assert_allclose(gps_t[:3], log["gps"].index[:3] - 0.2)
-    assert events.build_replay_inputs(_still_log()).gps_delay_s == pytest.approx(0.11)
+    default = events.build_replay_inputs(_still_log())
+    assert default.gps_delay_s == pytest.approx(0.11)
+    np.testing.assert_allclose(default.events.time_s[default.events.kind == events.GPS_POS][:3],
+                               log["gps"].index[:3] - 0.11)
     config = EstimatorConfig(timing=EstimatorConfig().timing.__class__(gps_delay_s=0.0))
     assert events.build_replay_inputs(log, config).gps_delay_s == 0.0
+    # without the parameter, a logged sample time is the measurement time
+    sampled = _still_log()
+    gps = sampled["gps"].copy()
+    gps["sample_time_s"] = gps.index - 0.07
+    sampled.streams["gps"] = gps
+    inputs = events.build_replay_inputs(sampled)
+    assert inputs.gps_time_rule == "sample_time_s"
+    np.testing.assert_allclose(inputs.events.time_s[inputs.events.kind == events.GPS_VEL][:3], gps.index[:3] - 0.07)
 
 
 def test_sample_time_and_duplicates():

@@ -8,13 +8,13 @@ import math
 
 import numpy as np
 import pytest
-from estimators_synthetic import synthetic_flight
 
 from estimators import events
 from estimators import full_state_direct as fsd
 from estimators import full_state_direct_numpy as ref
 from estimators.config import EstimatorConfig
 from estimators.events import AIRSPEED, BARO, GPS_POS, GPS_VEL, MAG, SIDESLIP, SUN, ZERO_VELOCITY
+from tests.estimators_synthetic import synthetic_flight
 
 G = 9.79
 FULL_LAYOUT = np.array([12, 15, 17, 20], dtype=np.int64)  # b_a, wind, mag bias, baro bias
