@@ -498,15 +498,18 @@ def h_sideslip(x, H):
     """
     H[:] = 0.0
     R = quat_to_dcm(x[X_Q:X_Q + 4])
-    air_b = R.T @ _air_velocity_ned(x)
+    air_n, air_e, air_d = x[X_V] - x[X_W], x[X_V + 1] - x[X_W + 1], x[X_V + 2]
+    air_bx = R[0, 0] * air_n + R[1, 0] * air_e + R[2, 0] * air_d
+    air_by = R[0, 1] * air_n + R[1, 1] * air_e + R[2, 1] * air_d
+    air_bz = R[0, 2] * air_n + R[1, 2] * air_e + R[2, 2] * air_d
     # e2^T [a]x = (a_z, 0, -a_x).
-    H[E_TH] = air_b[2]
-    H[E_TH + 2] = -air_b[0]
+    H[E_TH] = air_bz
+    H[E_TH + 2] = -air_bx
     for j in range(3):
         H[E_V + j] = R[j, 1]
     H[E_W] = -R[0, 1]
     H[E_W + 1] = -R[1, 1]
-    return air_b[1]
+    return air_by
 
 
 @njit(cache=True)
@@ -518,11 +521,16 @@ def h_body_vector(x, ref_ned, axis, with_mag_bias, H):
     """
     H[:] = 0.0
     R = quat_to_dcm(x[X_Q:X_Q + 4])
-    body = R.T @ ref_ned
-    k = skew(body)
-    for j in range(3):
-        H[E_TH + j] = k[axis, j]
-    value = body[axis]
+    b0 = R[0, 0] * ref_ned[0] + R[1, 0] * ref_ned[1] + R[2, 0] * ref_ned[2]
+    b1 = R[0, 1] * ref_ned[0] + R[1, 1] * ref_ned[1] + R[2, 1] * ref_ned[2]
+    b2 = R[0, 2] * ref_ned[0] + R[1, 2] * ref_ned[1] + R[2, 2] * ref_ned[2]
+    # row ``axis`` of [b]x
+    if axis == 0:
+        H[E_TH + 1], H[E_TH + 2], value = -b2, b1, b0
+    elif axis == 1:
+        H[E_TH], H[E_TH + 2], value = b2, -b0, b1
+    else:
+        H[E_TH], H[E_TH + 1], value = -b1, b0, b2
     if with_mag_bias:
         H[E_BM + axis] = 1.0
         value += x[X_BM + axis]

@@ -202,18 +202,18 @@ def measurement(x, kind, comp, values, field, lever_b, gyro, H):
 
 
 @njit(cache=True)
-def _flush_covariance(P, x_cov, acc, params, sel, rw_psd, min_var, max_var, F_full, Q_full, F, Q, work, active,
-                      counters):
+def _flush_covariance(P, x_cov, acc, imu_psd, rw_psd, sel, min_var, max_var, mean_input, F_full, Q_full, F, Q,
+                      work, active, counters):
     """Propagate P over the accumulated interval ``acc[0]`` with the mean inputs ``acc[1:7] / acc[0]``, from the
     nominal ``x_cov`` at its start; variance limits every time, the positive-definiteness repair every
-    ``PD_CHECK_EVERY`` propagations (as the direct filter)."""
+    ``PD_CHECK_EVERY`` propagations (as the direct filter). ``imu_psd`` (2, 3): squared gyro and accelerometer
+    noise densities; ``mean_input`` (2, 3) scratch."""
     dt = acc[0]
-    mean_gyro = acc[1:4] / dt
-    mean_accel = acc[4:7] / dt
-    m.transition(x_cov, mean_gyro, mean_accel, dt, F_full)
-    ng2 = np.full(3, params[P_NG2])
-    na2 = np.full(3, params[P_NA2])
-    m.process_noise(F_full, ng2, na2, rw_psd, dt, Q_full)
+    for i in range(3):
+        mean_input[0, i] = acc[1 + i] / dt
+        mean_input[1, i] = acc[4 + i] / dt
+    m.transition(x_cov, mean_input[0], mean_input[1], dt, F_full)
+    m.process_noise(F_full, imu_psd[0], imu_psd[1], rw_psd, dt, Q_full)
     n = sel.shape[0]
     for a in range(n):
         for b in range(n):
@@ -306,6 +306,10 @@ def run_kernel(imu_t, imu_gyro, imu_accel, ev_t, ev_kind, ev_imu, ev_val, ev_var
     zero_error = np.zeros(n)
     h3 = np.empty(3)
     acc = np.zeros(7)  # dt, sum gyro dt, sum accel dt
+    mean_input = np.empty((2, 3))
+    imu_psd = np.empty((2, 3))
+    imu_psd[0, :] = params[P_NG2]
+    imu_psd[1, :] = params[P_NA2]
     g = params[P_G]
     cov_dt = params[P_COV_DT]
     field = params[P_FIELD:P_FIELD + 3].copy()
@@ -336,17 +340,14 @@ def run_kernel(imu_t, imu_gyro, imu_accel, ev_t, ev_kind, ev_imu, ev_val, ev_var
                     acc[4 + i] += accel[i] * step
                 t = t_next
                 if acc[0] >= cov_dt * (1.0 - 1e-9):
-                    _flush_covariance(P, x_cov, acc, params, sel, rw_psd, min_var, max_var, F_full, Q_full, F, Q,
-                                      work, active, counters)
+                    _flush_covariance(P, x_cov, acc, imu_psd, rw_psd, sel, min_var, max_var, mean_input, F_full,
+                                      Q_full, F, Q, work, active, counters)
                     if not _healthy(x, P, zero_error):
                         _reset(x, P, x_safe, P0, counters)
             if not at_event:
                 break
             kind = ev_kind[j]
             values = ev_val[j]
-            if acc[0] > 0.0:
-                _flush_covariance(P, x_cov, acc, params, sel, rw_psd, min_var, max_var, F_full, Q_full, F, Q,
-                                  work, active, counters)
             if kind == OUTPUT:
                 if not _healthy(x, P, zero_error):
                     _reset(x, P, x_safe, P0, counters)
@@ -362,6 +363,11 @@ def run_kernel(imu_t, imu_gyro, imu_accel, ev_t, ev_kind, ev_imu, ev_val, ev_var
                 n_out += 1
                 j += 1
                 continue
+            # measurements see the covariance brought up to their time (outputs report the last propagated one,
+            # at most 1 / covariance_rate_hz old)
+            if acc[0] > 0.0:
+                _flush_covariance(P, x_cov, acc, imu_psd, rw_psd, sel, min_var, max_var, mean_input, F_full, Q_full,
+                                  F, Q, work, active, counters)
             if kind == GPS_POS and (t - last_gps_seen > params[P_GPS_OUTAGE_S]
                                     or t - last_gps_accept > params[P_GPS_REJECT_S]):
                 # (re)acquisition: position to GPS, variances to R, cross-covariances zeroed (math note 2.3)
@@ -425,8 +431,8 @@ def run_kernel(imu_t, imu_gyro, imu_accel, ev_t, ev_kind, ev_imu, ev_val, ev_var
                     last_gps_accept = t
             j += 1
     if acc[0] > 0.0:
-        _flush_covariance(P, x_cov, acc, params, sel, rw_psd, min_var, max_var, F_full, Q_full, F, Q, work, active,
-                          counters)
+        _flush_covariance(P, x_cov, acc, imu_psd, rw_psd, sel, min_var, max_var, mean_input, F_full, Q_full, F, Q,
+                          work, active, counters)
     counters[C_OUTPUTS] = n_out
     return x, P
 
