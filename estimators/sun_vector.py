@@ -19,14 +19,21 @@ Solvers
 * :func:`solve_sun_ls` -- least squares over all seven cells (seed 003 eqs 13-14 idea: the currents are linear in
   ``k s`` through the matrix of cell normals; the sky current is solved jointly from the device geometry, note
   8.4 (1)); ``s = x / |x|``, ``k = |x|``. Right only when every cell is lit and healthy.
-* :func:`solve_sun_adaptive` -- adaptive least squares (note 8.4): initial solution from the five largest
-  currents, then iterate: classify each cell as lit (incidence < ``max_incidence_deg``), dark
-  (``n . s < dark_cos_max``: carries only sky light, so it measures ``I_sky``) or grazing (not used); solve the
-  joint least squares; test every used cell's studentised residual (Baarda's data snooping, which is the
-  leave-one-out test) and exclude the worst cell beyond ``kappa`` sigma as faulty (stuck, shaded, glint); repeat
-  until the cell sets no longer change. No solution with fewer than 3 lit cells, no sky reference, a
-  condition number of the lit normals above ``cond_max``, an inconsistent fit that cannot be repaired, or a
-  ``k`` below ``k_min`` (clouds, night).
+* :func:`solve_sun_adaptive` -- adaptive least squares (note 8.4), per epoch in a numba kernel
+  (:func:`_solve_epoch`): a first solution from the five largest currents screens the other cells; then
+  classify each cell as lit (incidence < ``max_incidence_deg``), dark (``n . s < dark_cos_max``: it carries only
+  sky light, so it measures ``I_sky``) or grazing (not used); solve the joint least squares; exclude the cell
+  with the largest studentised residual beyond ``kappa`` sigma (Baarda's data snooping = the leave-one-out
+  test) as faulty (stuck, shaded, glint); repeat until the fit passes and its own direction gives the same
+  cell classes. When a cell was found faulty, the most suspicious accepted cells are tried as the culprit
+  instead and the hypothesis with the best robust (truncated-quadratic) score over all cells is kept.
+  Two passes: pass 2 adds priors on ``I_sky`` and ``k`` from pass 1's log-wide estimates (weighted median and
+  the spread the estimates' own errors do not explain); an epoch whose sky or k disagrees (passing cloud)
+  drops that prior. The sky prior matters: with the isotropic sky the six side cells cannot separate ``I_sky``
+  from the vertical component of ``k s``, so a faulty top cell is otherwise neither detectable nor avoidable
+  when all side cells are lit; the k prior makes a gross error on a well-lit cell identifiable. No solution
+  with fewer than 3 lit cells, no sky reference, a condition number of the lit normals above ``cond_max``, an
+  inconsistent fit that cannot be repaired, or a ``k`` below ``k_min`` (clouds, night).
 
 Quality: with ``sigma`` the per-cell current error (noise plus ``model_error_rel * k``), ``Cov(x) = sigma^2
 (A^T A)^-1`` and ``Sigma_s = P Cov(x)_xx P / k^2`` with ``P = I - s s^T`` (note 8.3); ``sigma_rad`` is the
@@ -40,6 +47,7 @@ error-state filter (``R = R_hat Exp(dtheta)``); noise ``R = sigma_rad^2 I``.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 import pandas as pd
@@ -71,6 +79,11 @@ STATUS_NAMES = {
 _UP_BODY = np.array([0.0, 0.0, -1.0])
 #: Tolerance [-] (in cos of the incidence) of the lit/dark thresholds when checking a solution's cell classes.
 _CLASS_BAND = 0.05
+#: Score margin [-] (in squared standardised residuals) by which an alternative fault hypothesis must beat the
+#: first one to replace it: ties go to the hypothesis that excludes fewer cells.
+_ALTERNATIVE_MARGIN = 1.0
+#: Most re-linearisations of the k prior row per fit.
+_K_PRIOR_ITERATIONS = 5
 
 
 @dataclass(frozen=True)
@@ -101,6 +114,9 @@ class SunSolverConfig:
         Absolute ``k`` threshold [A] replacing the two relative ones when given.
     max_iterations : int
         Most solve / classify / exclude rounds per epoch.
+    n_alternatives : int
+        When a cell is found faulty, the number of most suspicious accepted cells tried as the faulty one instead
+        (0: trust the first identification).
     """
 
     max_incidence_deg: float = 80.0
@@ -113,6 +129,7 @@ class SunSolverConfig:
     k_min_snr: float = 20.0
     k_min_a: float | None = None
     max_iterations: int = 10
+    n_alternatives: int = 4
 
     def __post_init__(self):
         checks = {
@@ -126,6 +143,7 @@ class SunSolverConfig:
             "k_min_snr": self.k_min_snr >= 0.0,
             "k_min_a": self.k_min_a is None or self.k_min_a >= 0.0,
             "max_iterations": self.max_iterations >= 1,
+            "n_alternatives": 0 <= self.n_alternatives < N_CELLS,
         }
         for name, ok in checks.items():
             if not ok:
@@ -260,9 +278,28 @@ def device_sun_and_up(r_nb, s_ned, device: SunDevice) -> tuple[np.ndarray, np.nd
 # per call: a BLAS/LAPACK call or a heap allocation per epoch would cost more than the arithmetic.
 # ----------------------------------------------------------------------------------------------------------------
 # Rows of the scratch arrays: cell flags (bool, n_cells wide), vectors (4 wide), 4x4 matrices.
-_AVAILABLE, _CORE, _EXCLUDED, _READMITTED, _LIT, _DARK, _USABLE, _USED = range(8)
-_S, _S_NEW, _SOLUTION, _ROW, _RHS = range(5)
+_AVAILABLE, _CORE, _EXCLUDED, _READMITTED, _LIT, _DARK, _USABLE, _USED, _FIT_LIT, _FAULTY, _START_EXCLUDED = range(11)
+_N_FLAGS = 11
+_S, _S_NEW, _SOLUTION, _ROW, _RHS, _START_S = range(6)
 _NORMAL, _INVERSE, _LOW, _LOW_INV = range(4)
+
+
+class _KernelSettings(NamedTuple):
+    """Scalars of the adaptive kernel (see :class:`SunSolverConfig`); an infinite prior sigma = no prior."""
+
+    noise_a: float
+    model_error_rel: float
+    kappa: float
+    cos_lit_min: float
+    cos_dark_max: float
+    cond_max: float
+    n_initial: int
+    max_iterations: int
+    n_alternatives: int
+    sky_prior_a: float
+    sky_prior_sigma_a: float
+    k_prior_a: float
+    k_prior_sigma_a: float
 
 
 @njit(cache=True)
@@ -341,12 +378,14 @@ def _residual_leverage(current, normals, sky_factor, lit, i, vec, mat):
 
 
 @njit(cache=True)
-def _joint_fit(current, normals, sky_factor, lit, dark, prior_weight, sky_prior_a, vec, mat):
-    """Least squares of the lit and dark cells' rows plus the sky prior row (relative weight ``prior_weight``).
+def _joint_fit(current, normals, sky_factor, lit, dark, sky_weight, sky_prior_a, k_weight, k_prior_a, vec, mat):
+    """Least squares of the lit and dark cells' rows plus the prior rows (relative weights, 0 = unused).
 
-    Writes ``vec[_SOLUTION]`` = (k s, I_sky) and ``mat[_INVERSE]``; returns (cond(N_L^T N_L), ok).
+    Sky prior row: ``I_sky = sky_prior_a``; k prior row: ``s . (k s) = k_prior_a`` linearised about the current
+    direction ``vec[_S]``. Writes ``vec[_SOLUTION]`` = (k s, I_sky) and ``mat[_INVERSE]``; returns
+    (cond(N_L^T N_L) of the lit normals, ok).
     """
-    m, b, row, solution, m_inv = mat[_NORMAL], vec[_RHS], vec[_ROW], vec[_SOLUTION], mat[_INVERSE]
+    m, b, row, solution, m_inv, s = mat[_NORMAL], vec[_RHS], vec[_ROW], vec[_SOLUTION], mat[_INVERSE], vec[_S]
     m[:] = 0.0
     b[:] = 0.0
     for i in range(current.shape[0]):
@@ -356,10 +395,15 @@ def _joint_fit(current, normals, sky_factor, lit, dark, prior_weight, sky_prior_
                 b[p] += row[p] * current[i]
                 for q in range(4):
                     m[p, q] += row[p] * row[q]
-    if prior_weight > 0.0:
-        m[3, 3] += prior_weight
-        b[3] += prior_weight * sky_prior_a
     condition = _condition_sym3(m)
+    if sky_weight > 0.0:
+        m[3, 3] += sky_weight
+        b[3] += sky_weight * sky_prior_a
+    if k_weight > 0.0:
+        for p in range(3):
+            b[p] += k_weight * k_prior_a * s[p]
+            for q in range(3):
+                m[p, q] += k_weight * s[p] * s[q]
     if not _spd_inverse(mat, 4):
         return condition, False
     for p in range(4):
@@ -441,29 +485,194 @@ def _classification_holds(normals, s, usable, lit, dark, cos_lit_min, cos_dark_m
 
 
 @njit(cache=True)
-def _solve_epoch(current, normals, sky_factor, noise_a, model_error_rel, kappa, cos_lit_min, cos_dark_max,
-                 cond_max, n_initial, max_iterations, sky_prior_a, sky_prior_sigma_a, s_out, cells_used, faulty,
-                 flags, vec, mat):
+def _refine(current, normals, sky_factor, st, k, flags, vec, mat):
+    """Steps 2 and 3 of :func:`_solve_epoch` from direction ``vec[_S]``, scale ``k`` and ``flags[_EXCLUDED]``.
+
+    On success leaves the final fit in ``vec[_S]``, ``vec[_SOLUTION]``, ``mat[_INVERSE]``, the fitted cells in
+    ``flags[_USED]`` (lit ones in ``flags[_FIT_LIT]``) and the faulty ones in ``flags[_FAULTY]``.
+    Returns (status, k [A], current sigma [A], residual sum of squares [A^2], number of faulty cells).
+    """
+    n_cells = current.shape[0]
+    available, excluded, readmitted = flags[_AVAILABLE], flags[_EXCLUDED], flags[_READMITTED]
+    lit, dark, usable, used, fit_lit, faulty = (flags[_LIT], flags[_DARK], flags[_USABLE], flags[_USED],
+                                                flags[_FIT_LIT], flags[_FAULTY])
+    s, s_new, solution, m_inv = vec[_S], vec[_S_NEW], vec[_SOLUTION], mat[_INVERSE]
+    use_sky = np.isfinite(st.sky_prior_sigma_a)
+    use_k = np.isfinite(st.k_prior_sigma_a)
+    for _ in range(st.max_iterations):
+        for i in range(n_cells):
+            usable[i] = available[i] and not excluded[i]
+        n_lit, n_dark = _classify(normals, s, usable, st.cos_lit_min, st.cos_dark_max, lit, dark)
+        if n_lit < 3 or (n_lit + n_dark < 4 and not use_sky):
+            return STATUS_TOO_FEW_CELLS, k, np.nan, np.nan, 0
+        sigma = np.sqrt(st.noise_a ** 2 + (st.model_error_rel * k) ** 2)
+        sky_weight = (sigma / st.sky_prior_sigma_a) ** 2 if use_sky else 0.0
+        k_weight = (sigma / st.k_prior_sigma_a) ** 2 if use_k else 0.0
+        # The k prior row is linearised about s: re-linearise (same cells) until the direction stops moving.
+        for _ in range(_K_PRIOR_ITERATIONS if use_k else 1):
+            condition, ok = _joint_fit(current, normals, sky_factor, lit, dark, sky_weight, st.sky_prior_a,
+                                       k_weight, st.k_prior_a, vec, mat)
+            if not ok or condition > st.cond_max:
+                return STATUS_ILL_CONDITIONED, k, np.nan, np.nan, 0
+            k_new = np.sqrt(solution[0] ** 2 + solution[1] ** 2 + solution[2] ** 2)
+            if k_new == 0.0:
+                return STATUS_LOW_K, k, np.nan, np.nan, 0
+            moved = 0.0
+            for p in range(3):
+                s_new[p] = solution[p] / k_new
+                moved += (s_new[p] - s[p]) ** 2
+            if not use_k or moved < 1e-12:
+                break
+            s[:] = s_new
+        # Studentised residuals w = r / (sigma sqrt(1 - h)) of the cells (and sqrt(weight) r / (sigma sqrt(1 - h))
+        # of the prior rows); the largest is the best leave-one-out candidate.
+        rss = 0.0
+        worst = -1
+        worst_w = st.kappa
+        for i in range(n_cells):
+            if lit[i] or dark[i]:
+                residual, leverage = _residual_leverage(current, normals, sky_factor, lit, i, vec, mat)
+                rss += residual * residual
+                if leverage < 1.0 - 1e-9 and abs(residual) > worst_w * sigma * np.sqrt(1.0 - leverage):
+                    worst_w = abs(residual) / (sigma * np.sqrt(1.0 - leverage))
+                    worst = i
+        if use_sky:
+            residual = st.sky_prior_a - solution[3]
+            leverage = sky_weight * m_inv[3, 3]
+            w = abs(residual) * np.sqrt(sky_weight) / (sigma * np.sqrt(max(1.0 - leverage, 1e-12)))
+            if w > worst_w:
+                worst_w = w
+                worst = n_cells
+        if use_k:
+            residual = st.k_prior_a
+            leverage = 0.0
+            for p in range(3):
+                residual -= s[p] * solution[p]
+                for q in range(3):
+                    leverage += s[p] * m_inv[p, q] * s[q]
+            leverage *= k_weight
+            w = abs(residual) * np.sqrt(k_weight) / (sigma * np.sqrt(max(1.0 - leverage, 1e-12)))
+            if w > worst_w:
+                worst_w = w
+                worst = n_cells + 1
+        if worst == n_cells:  # the sky light differs from the log's: no prior for this epoch
+            use_sky = False
+            continue
+        if worst == n_cells + 1:  # so does k (passing cloud): no prior for this epoch
+            use_k = False
+            continue
+        k = k_new
+        if worst >= 0:
+            lit_left = n_lit - lit[worst]
+            dark_left = n_dark - dark[worst]
+            if lit_left < 3 or (lit_left + dark_left < 4 and not use_sky):
+                return STATUS_INCONSISTENT, k, np.nan, np.nan, 0
+            excluded[worst] = True
+            s[:] = s_new
+            continue
+        s[:] = s_new
+        if not _classification_holds(normals, s, usable, lit, dark, st.cos_lit_min, st.cos_dark_max):
+            continue
+        # Fixed point: re-admit excluded cells the fit predicts (once each), else finish.
+        for i in range(n_cells):
+            used[i] = lit[i] or dark[i]
+            fit_lit[i] = lit[i]
+            usable[i] = available[i] and excluded[i]
+        _classify(normals, s, usable, st.cos_lit_min, st.cos_dark_max, lit, dark)
+        again = False
+        n_faulty = 0
+        for i in range(n_cells):
+            faulty[i] = False
+            if lit[i] or dark[i]:
+                residual, leverage = _residual_leverage(current, normals, sky_factor, lit, i, vec, mat)
+                consistent = abs(residual) <= st.kappa * sigma * np.sqrt(1.0 + leverage)
+                if consistent and not readmitted[i]:
+                    excluded[i] = False
+                    readmitted[i] = True
+                    again = True
+                faulty[i] = not consistent
+                n_faulty += faulty[i]
+        if again:
+            continue
+        return STATUS_OK, k, sigma, rss, n_faulty
+    return STATUS_INCONSISTENT, k, np.nan, np.nan, 0
+
+
+@njit(cache=True)
+def _suspects(current, normals, sky_factor, flags, vec, mat, n_suspects, suspects, suspicion):
+    """The ``n_suspects`` used lit cells of the last fit with the largest studentised residuals, into
+    ``suspects`` (-1 = none; ``suspicion``: scratch, one per cell); returns how many there are."""
+    fit_lit, used = flags[_FIT_LIT], flags[_USED]
+    n_cells = current.shape[0]
+    for i in range(n_cells):
+        suspicion[i] = -1.0
+        if used[i] and fit_lit[i]:
+            residual, leverage = _residual_leverage(current, normals, sky_factor, fit_lit, i, vec, mat)
+            suspicion[i] = abs(residual) / np.sqrt(max(1.0 - leverage, 1e-12))
+    count = 0
+    for j in range(n_suspects):
+        best = -1
+        for i in range(n_cells):
+            if suspicion[i] >= 0.0 and (best < 0 or suspicion[i] > suspicion[best]):
+                best = i
+        suspects[j] = best
+        if best < 0:
+            break
+        suspicion[best] = -1.0
+        count += 1
+    return count
+
+
+@njit(cache=True)
+def _robust_score(current, normals, sky_factor, available, s, k, sky, sigma, st):
+    """Sum over the available cells of min((r_i / sigma)^2, kappa^2), r_i against the full model
+    ``k max(0, n_i . s) + sky f_i``, plus the same for the priors on sky and k (truncated quadratic, as MSAC
+    scores hypotheses): a cell or prior a hypothesis rejects costs ``kappa^2``, one it explains its squared
+    standardised residual."""
+    cap = st.kappa * st.kappa
+    score = min(((sky - st.sky_prior_a) / st.sky_prior_sigma_a) ** 2, cap)
+    score += min(((k - st.k_prior_a) / st.k_prior_sigma_a) ** 2, cap)
+    for i in range(current.shape[0]):
+        if available[i]:
+            c = normals[i, 0] * s[0] + normals[i, 1] * s[1] + normals[i, 2] * s[2]
+            w = (current[i] - k * max(c, 0.0) - sky * sky_factor[i]) / sigma
+            score += min(w * w, cap)
+    return score
+
+
+@njit(cache=True)
+def _no_solution(status):
+    """The return tuple of :func:`_solve_epoch` without a solution."""
+    return status, np.nan, np.nan, np.nan, 0, np.nan, np.nan, np.nan
+
+
+@njit(cache=True)
+def _solve_epoch(current, normals, sky_factor, st, s_out, cells_used, faulty, flags, vec, mat, suspects,
+                 suspicion):
     """Adaptive LS for one epoch; writes ``s_out`` (3,), ``cells_used`` (7,), ``faulty`` (7,).
 
     1. Core: the ``n_initial`` largest currents (a stuck-at-zero cell is never among them while enough cells are
        lit) give a first direction and a joint fit; every other cell whose current this fit does not predict
        (prediction test at ``kappa``) starts excluded.
-    2. Loop: classify (lit / dark / grazing) with the current direction, fit, exclude the cell with the largest
-       studentised residual beyond ``kappa`` (data snooping), until the fit passes and its own direction gives
-       the same classes (a fixed point: a linear fit alone can trade a stuck cell for an absurd direction).
-    3. Excluded cells that the final fit predicts after all are re-admitted once (then back to 2); the rest,
-       if lit or dark in the final direction, are the faulty ones.
+    2. Loop: classify (lit / dark / grazing) with the current direction, fit, exclude the row with the largest
+       studentised residual beyond ``kappa`` (data snooping; a prior row that fails is dropped for this epoch),
+       until the fit passes and its own direction gives the same classes (a fixed point: a linear fit alone
+       can trade a stuck cell for an absurd direction).
+    3. Excluded cells that the final fit predicts after all are re-admitted once (then back to 2).
+    4. With a faulty cell, a gross error on a well-lit cell may have been blamed on another: redo 2-3 with each of
+       the ``n_alternatives`` most suspicious accepted cells excluded from the start, and keep the solution with
+       the smallest truncated-quadratic score over all cells (:func:`_robust_score`; an alternative must win by
+       ``_ALTERNATIVE_MARGIN``). Faulty: the excluded cells the kept solution does not predict.
 
-    ``flags``, ``vec``, ``mat``: scratch space (rows ``_AVAILABLE``.., ``_S``.., ``_NORMAL``..).
-    Returns (status, k [A], sky [A], sky 1-sigma per unit current sigma [-], residual sum of squares [A^2],
-    fitted cells, sigma [rad]).
+    ``st``: :class:`_KernelSettings`; ``flags``, ``vec``, ``mat``, ``suspects`` (n_alternatives ints),
+    ``suspicion`` (one per cell): scratch space (rows ``_AVAILABLE``.., ``_S``.., ``_NORMAL``..).
+    Returns (status, k [A], sky [A], residual sum of squares [A^2], fitted cells, sigma [rad], and the 1-sigma
+    of sky and k per unit current sigma [-]).
     """
-    nan = np.nan
     n_cells = current.shape[0]
     available, core, excluded, readmitted = flags[_AVAILABLE], flags[_CORE], flags[_EXCLUDED], flags[_READMITTED]
-    lit, dark, usable, used = flags[_LIT], flags[_DARK], flags[_USABLE], flags[_USED]
-    s, s_new, solution, m_inv = vec[_S], vec[_S_NEW], vec[_SOLUTION], mat[_INVERSE]
+    lit, dark, used, fault = flags[_LIT], flags[_DARK], flags[_USED], flags[_FAULTY]
+    s, solution, m_inv = vec[_S], vec[_SOLUTION], mat[_INVERSE]
     n_available = 0
     for i in range(n_cells):
         available[i] = np.isfinite(current[i])
@@ -472,120 +681,86 @@ def _solve_epoch(current, normals, sky_factor, noise_a, model_error_rel, kappa, 
         readmitted[i] = False
         cells_used[i] = False
         faulty[i] = False
-    s_out[:] = nan
+    s_out[:] = np.nan
     if n_available < 3:
-        return STATUS_NO_DATA, nan, nan, nan, nan, 0, nan
-    k, ok = _initial_direction(current, normals, sky_factor, n_initial, flags, vec, mat)
+        return _no_solution(STATUS_NO_DATA)
+    k, ok = _initial_direction(current, normals, sky_factor, st.n_initial, flags, vec, mat)
     if not ok:
-        return STATUS_ILL_CONDITIONED, nan, nan, nan, nan, 0, nan
-    has_prior = np.isfinite(sky_prior_sigma_a)
-    sigma = np.sqrt(noise_a ** 2 + (model_error_rel * k) ** 2)
-    prior_weight = (sigma / sky_prior_sigma_a) ** 2 if has_prior else 0.0
+        return _no_solution(STATUS_ILL_CONDITIONED)
     # 1. Screen the non-core cells against the core's fit.
-    n_lit, n_dark = _classify(normals, s, core, cos_lit_min, cos_dark_max, lit, dark)
-    if n_lit >= 3 and (n_lit + n_dark >= 4 or has_prior):
-        _, ok = _joint_fit(current, normals, sky_factor, lit, dark, prior_weight, sky_prior_a, vec, mat)
+    use_sky = np.isfinite(st.sky_prior_sigma_a)
+    n_lit, n_dark = _classify(normals, s, core, st.cos_lit_min, st.cos_dark_max, lit, dark)
+    if n_lit >= 3 and (n_lit + n_dark >= 4 or use_sky):
+        sigma = np.sqrt(st.noise_a ** 2 + (st.model_error_rel * k) ** 2)
+        _, ok = _joint_fit(current, normals, sky_factor, lit, dark, (sigma / st.sky_prior_sigma_a) ** 2,
+                           st.sky_prior_a, (sigma / st.k_prior_sigma_a) ** 2, st.k_prior_a, vec, mat)
         k_core = np.sqrt(solution[0] ** 2 + solution[1] ** 2 + solution[2] ** 2)
         if ok and k_core > 0.0:
             k = k_core
             for p in range(3):
                 s[p] = solution[p] / k
-            sigma = np.sqrt(noise_a ** 2 + (model_error_rel * k) ** 2)
-            _classify(normals, s, available, cos_lit_min, cos_dark_max, lit, dark)
+            sigma = np.sqrt(st.noise_a ** 2 + (st.model_error_rel * k) ** 2)
+            _classify(normals, s, available, st.cos_lit_min, st.cos_dark_max, lit, dark)
             for i in range(n_cells):
                 if (lit[i] or dark[i]) and not core[i]:
                     residual, leverage = _residual_leverage(current, normals, sky_factor, lit, i, vec, mat)
-                    excluded[i] = abs(residual) > kappa * sigma * np.sqrt(1.0 + leverage)
-    # 2./3. Refine to a consistent fixed point.
-    for _ in range(max_iterations):
-        for i in range(n_cells):
-            usable[i] = available[i] and not excluded[i]
-        n_lit, n_dark = _classify(normals, s, usable, cos_lit_min, cos_dark_max, lit, dark)
-        if n_lit < 3 or (n_lit + n_dark < 4 and not has_prior):
-            return STATUS_TOO_FEW_CELLS, nan, nan, nan, nan, 0, nan
-        sigma = np.sqrt(noise_a ** 2 + (model_error_rel * k) ** 2)
-        prior_weight = (sigma / sky_prior_sigma_a) ** 2 if has_prior else 0.0
-        condition, ok = _joint_fit(current, normals, sky_factor, lit, dark, prior_weight, sky_prior_a, vec, mat)
-        if not ok or condition > cond_max:
-            return STATUS_ILL_CONDITIONED, nan, nan, nan, nan, 0, nan
-        k = np.sqrt(solution[0] ** 2 + solution[1] ** 2 + solution[2] ** 2)
-        if k == 0.0:
-            return STATUS_LOW_K, nan, nan, nan, nan, 0, nan
-        for p in range(3):
-            s_new[p] = solution[p] / k
-        sigma = np.sqrt(noise_a ** 2 + (model_error_rel * k) ** 2)
-        # Studentised residuals w_i = r_i / (sigma sqrt(1 - h_ii)); the largest is the best leave-one-out candidate.
-        rss = 0.0
-        worst = -1
-        worst_w = kappa
-        for i in range(n_cells):
-            if lit[i] or dark[i]:
-                residual, leverage = _residual_leverage(current, normals, sky_factor, lit, i, vec, mat)
-                rss += residual * residual
-                if leverage < 1.0 - 1e-9 and abs(residual) > worst_w * sigma * np.sqrt(1.0 - leverage):
-                    worst_w = abs(residual) / (sigma * np.sqrt(1.0 - leverage))
-                    worst = i
-        if worst >= 0:
-            lit_left = n_lit - lit[worst]
-            dark_left = n_dark - dark[worst]
-            if lit_left < 3 or (lit_left + dark_left < 4 and not has_prior):
-                return STATUS_INCONSISTENT, nan, nan, nan, nan, 0, nan
-            excluded[worst] = True
-            s[:] = s_new
+                    excluded[i] = abs(residual) > st.kappa * sigma * np.sqrt(1.0 + leverage)
+    start_s, start_excluded = vec[_START_S], flags[_START_EXCLUDED]
+    start_s[:] = s
+    start_excluded[:] = excluded
+    # 2./3.
+    best = _no_solution(STATUS_INCONSISTENT)
+    best_score = np.inf
+    score_sigma = 0.0
+    n_tries = 1
+    attempt = 0
+    while attempt < n_tries:
+        if attempt > 0:  # 4. an alternative: the suspect excluded (and never re-admitted) from the start
+            s[:] = start_s
+            excluded[:] = start_excluded
+            readmitted[:] = False
+            excluded[suspects[attempt - 1]] = True
+            readmitted[suspects[attempt - 1]] = True
+        status, k_fit, sigma, rss, n_faulty = _refine(current, normals, sky_factor, st, k, flags, vec, mat)
+        if attempt == 0:
+            if status != STATUS_OK:
+                return _no_solution(status)
+            score_sigma = sigma
+            if n_faulty > 0 and st.n_alternatives > 0:
+                n_tries = 1 + _suspects(current, normals, sky_factor, flags, vec, mat, st.n_alternatives, suspects,
+                                        suspicion)
+        if status != STATUS_OK:
+            attempt += 1
             continue
-        s[:] = s_new
-        if not _classification_holds(normals, s, usable, lit, dark, cos_lit_min, cos_dark_max):
-            continue
-        # Fixed point: re-admit excluded cells the fit predicts (once each), else finish.
-        n_used = 0
-        for i in range(n_cells):
-            used[i] = lit[i] or dark[i]
-            n_used += used[i]
-            usable[i] = available[i] and excluded[i]
-        _classify(normals, s, usable, cos_lit_min, cos_dark_max, lit, dark)
-        again = False
-        for i in range(n_cells):
-            faulty[i] = lit[i] or dark[i]
-            if faulty[i] and not readmitted[i]:
-                residual, leverage = _residual_leverage(current, normals, sky_factor, lit, i, vec, mat)
-                if abs(residual) <= kappa * sigma * np.sqrt(1.0 + leverage):
-                    excluded[i] = False
-                    readmitted[i] = True
-                    again = True
-        if again:
-            faulty[:] = False
-            continue
-        s_out[:] = s[:3]
-        cells_used[:] = used
-        cov_along = 0.0
-        for p in range(3):
-            for q in range(3):
-                cov_along += s[p] * m_inv[p, q] * s[q]
-        sigma_rad = sigma * np.sqrt(max(m_inv[0, 0] + m_inv[1, 1] + m_inv[2, 2] - cov_along, 0.0) / 2.0) / k
-        return STATUS_OK, k, solution[3], np.sqrt(m_inv[3, 3]), rss, n_used, sigma_rad
-    faulty[:] = False
-    return STATUS_INCONSISTENT, nan, nan, nan, nan, 0, nan
+        score = _robust_score(current, normals, sky_factor, available, s, k_fit, solution[3], score_sigma, st)
+        if score < best_score - (_ALTERNATIVE_MARGIN if attempt > 0 else 0.0):
+            best_score = score
+            cov_along = 0.0
+            for p in range(3):
+                for q in range(3):
+                    cov_along += s[p] * m_inv[p, q] * s[q]
+            spread = max(m_inv[0, 0] + m_inv[1, 1] + m_inv[2, 2] - cov_along, 0.0)
+            best = (STATUS_OK, k_fit, solution[3], rss, int(used.sum()), sigma * np.sqrt(spread / 2.0) / k_fit,
+                    np.sqrt(m_inv[3, 3]), np.sqrt(cov_along))
+            s_out[:] = s[:3]
+            cells_used[:] = used
+            faulty[:] = fault
+        attempt += 1
+    return best
 
 
 @njit(cache=True)
-def _adaptive_kernel(currents, normals, sky_factor, noise_a, model_error_rel, kappa, cos_lit_min, cos_dark_max,
-                     cond_max, n_initial, max_iterations, sky_prior_a, sky_prior_sigma_a, s_out, k_out, sky_out,
-                     sky_gain_out, rss_out, n_fit_out, sigma_out, cells_used, faulty, status):
-    flags = np.zeros((8, currents.shape[1]), dtype=np.bool_)
-    vec = np.zeros((5, 4))
+def _adaptive_kernel(currents, normals, sky_factor, st, s_out, k_out, sky_out, rss_out, n_fit_out, sigma_out,
+                     sky_gain_out, k_gain_out, cells_used, faulty, status):
+    flags = np.zeros((_N_FLAGS, currents.shape[1]), dtype=np.bool_)
+    vec = np.zeros((6, 4))
     mat = np.zeros((4, 4, 4))
+    suspects = np.full(max(st.n_alternatives, 1), -1)
+    suspicion = np.zeros(currents.shape[1])
     for e in range(currents.shape[0]):
-        code, k, sky, sky_gain, rss, n_fit, sigma = _solve_epoch(
-            currents[e], normals, sky_factor[e], noise_a, model_error_rel, kappa, cos_lit_min, cos_dark_max,
-            cond_max, n_initial, max_iterations, sky_prior_a, sky_prior_sigma_a, s_out[e], cells_used[e],
-            faulty[e], flags, vec, mat)
-        status[e] = code
-        k_out[e] = k
-        sky_out[e] = sky
-        sky_gain_out[e] = sky_gain
-        rss_out[e] = rss
-        n_fit_out[e] = n_fit
-        sigma_out[e] = sigma
+        (status[e], k_out[e], sky_out[e], rss_out[e], n_fit_out[e], sigma_out[e], sky_gain_out[e],
+         k_gain_out[e]) = _solve_epoch(currents[e], normals, sky_factor[e], st, s_out[e], cells_used[e],
+                                       faulty[e], flags, vec, mat, suspects, suspicion)
 
 
 # ----------------------------------------------------------------------------------------------------------------
@@ -671,12 +846,10 @@ def solve_sun_adaptive(currents_a, device: SunDevice, noise_a: float, up_device=
                        config: SunSolverConfig | None = None) -> SunSolution:
     """Adaptive least-squares unit sun vector with lit-cell selection, sky removal and fault exclusion.
 
-    Algorithm in the module docstring (note 8.4); the per-epoch logic is a numba kernel run twice. Pass 1 takes
-    the sky current from the dark cells or the top cell only. Its weighted median over the solved epochs (with
-    the spread the estimates' errors do not explain, :func:`_sky_prior`) then enters pass 2 as a prior on
-    ``I_sky``: with the isotropic-sky model
-    the six side cells cannot separate ``I_sky`` from the vertical component of ``k s``, so without the prior a
-    faulty top cell could be neither detected nor solved around whenever all side cells are lit.
+    Algorithm in the module docstring (note 8.4). The per-epoch numba kernel runs twice: pass 1 without priors,
+    pass 2 with the priors on the sky current (1-sigma at least ``noise_a``) and on ``k`` (at least
+    ``model_error_rel * k``) that :func:`_robust_prior` derives from pass 1. About 5 us per epoch and pass with
+    a faulty cell (which triggers the alternative hypotheses), less without.
 
     Parameters
     ----------
@@ -703,12 +876,14 @@ def solve_sun_adaptive(currents_a, device: SunDevice, noise_a: float, up_device=
     currents = np.ascontiguousarray(_checked_currents(currents_a))
     noise = _checked_noise(noise_a)
     sky_factor = _sky_factor_per_epoch(device, up_device, len(currents))
-    first = _run_adaptive_kernel(currents, device, sky_factor, noise, config, np.nan, np.inf)
+    first = _run_adaptive_kernel(currents, device, sky_factor, noise, config)
     solved = first["status"] == STATUS_OK
     if solved.any():
         sigma_a = np.hypot(noise, config.model_error_rel * np.median(first["k"][solved]))
-        sky_prior, sky_prior_sigma = _sky_prior(first["sky"][solved], sigma_a * first["sky_gain"][solved])
-        final = _run_adaptive_kernel(currents, device, sky_factor, noise, config, sky_prior, sky_prior_sigma)
+        priors = (*_robust_prior(first["sky"][solved], sigma_a * first["sky_gain"][solved], noise),
+                  *_robust_prior(first["k"][solved], sigma_a * first["k_gain"][solved],
+                                 config.model_error_rel * np.median(first["k"][solved])))
+        final = _run_adaptive_kernel(currents, device, sky_factor, noise, config, priors)
     else:
         final = first
     status, k = final["status"], final["k"]
@@ -731,24 +906,25 @@ def solve_sun_adaptive(currents_a, device: SunDevice, noise_a: float, up_device=
                        k_min_a=k_min)
 
 
-def _sky_prior(sky_a, sky_sd_a) -> tuple[float, float]:
-    """Prior (value, 1-sigma) [A] on the sky current from pass-1 estimates ``sky_a`` with 1-sigma ``sky_sd_a``.
+def _robust_prior(values_a, sd_a, floor_a) -> tuple[float, float]:
+    """Prior (value, 1-sigma) [A] on the sky current or on ``k`` from pass-1 estimates with 1-sigma ``sd_a``.
 
     Value: median weighted by ``1 / sd^2`` (the ``sd`` come from the geometry and one common current sigma, so
-    the weights do not select on the estimates' own errors). Spread ``tau`` of the true sky current: the root of
+    the weights do not select on the estimates' own errors). Spread ``tau`` of the true quantity: the root of
     ``median(|sky - value| / sqrt(sd^2 + tau^2)) = 0.6745`` (median of a unit half-normal), i.e. the scatter the
     estimates' errors do not explain. Returned sigma: ``sqrt(tau^2 + se^2)`` with ``se`` the standard error of
-    the weighted median (1.2533 / sqrt(sum of weights)).
+    the weighted median (1.2533 / sqrt(sum of weights)), at least ``floor_a`` (the per-cell model error: pass-1
+    solutions misled by a faulty cell bias the value by more than ``se``).
     """
-    weight = 1.0 / sky_sd_a ** 2
-    order = np.argsort(sky_a)
+    weight = 1.0 / sd_a ** 2
+    order = np.argsort(values_a)
     cumulative = np.cumsum(weight[order])
-    value = float(sky_a[order][np.searchsorted(cumulative, 0.5 * cumulative[-1])])
+    value = float(values_a[order][np.searchsorted(cumulative, 0.5 * cumulative[-1])])
     standard_error = 1.2533 / np.sqrt(cumulative[-1])
-    deviation = np.abs(sky_a - value)
+    deviation = np.abs(values_a - value)
 
     def excess(tau):
-        return float(np.median(deviation / np.sqrt(sky_sd_a ** 2 + tau ** 2))) - 0.6745
+        return float(np.median(deviation / np.sqrt(sd_a ** 2 + tau ** 2))) - 0.6745
 
     tau = 0.0
     if excess(0.0) > 0.0:
@@ -757,25 +933,30 @@ def _sky_prior(sky_a, sky_sd_a) -> tuple[float, float]:
             middle = 0.5 * (low + high)
             low, high = (middle, high) if excess(middle) > 0.0 else (low, middle)
         tau = high
-    return value, float(np.hypot(tau, standard_error))
+    return value, max(float(np.hypot(tau, standard_error)), float(floor_a))
 
 
-def _run_adaptive_kernel(currents, device, sky_factor, noise, config, sky_prior_a, sky_prior_sigma_a) -> dict:
-    """Allocate the outputs and run :func:`_adaptive_kernel` once (``sky_prior_sigma_a = inf``: no prior)."""
+def _run_adaptive_kernel(currents, device, sky_factor, noise, config, priors=(0.0, np.inf, 0.0, np.inf)) -> dict:
+    """Allocate the outputs and run :func:`_adaptive_kernel` once.
+
+    ``priors``: (sky value, sky sigma, k value, k sigma) [A]; an infinite sigma means no prior.
+    """
     n_epochs = len(currents)
     out = {
         "s_device": np.full((n_epochs, 3), np.nan),
-        **{name: np.full(n_epochs, np.nan) for name in ("k", "sky", "sky_gain", "rss", "sigma_rad")},
+        **{name: np.full(n_epochs, np.nan) for name in ("k", "sky", "rss", "sigma_rad", "sky_gain", "k_gain")},
         "n_fit": np.zeros(n_epochs, dtype=np.int64),
         "cells_used": np.zeros((n_epochs, N_CELLS), dtype=bool),
         "faulty": np.zeros((n_epochs, N_CELLS), dtype=bool),
         "status": np.zeros(n_epochs, dtype=np.int8),
     }
-    _adaptive_kernel(currents, np.ascontiguousarray(device.normals_device), sky_factor, noise,
-                     config.model_error_rel, config.kappa, np.cos(np.radians(config.max_incidence_deg)),
-                     config.dark_cos_max, config.cond_max, config.n_initial, config.max_iterations,
-                     sky_prior_a, sky_prior_sigma_a, out["s_device"], out["k"], out["sky"], out["sky_gain"], out["rss"],
-                     out["n_fit"], out["sigma_rad"], out["cells_used"], out["faulty"], out["status"])
+    settings = _KernelSettings(
+        float(noise), float(config.model_error_rel), float(config.kappa),
+        float(np.cos(np.radians(config.max_incidence_deg))), float(config.dark_cos_max), float(config.cond_max),
+        int(config.n_initial), int(config.max_iterations), int(config.n_alternatives), *map(float, priors))
+    _adaptive_kernel(currents, np.ascontiguousarray(device.normals_device), sky_factor, settings,
+                     out["s_device"], out["k"], out["sky"], out["rss"], out["n_fit"], out["sigma_rad"],
+                     out["sky_gain"], out["k_gain"], out["cells_used"], out["faulty"], out["status"])
     return out
 
 
