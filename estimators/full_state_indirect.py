@@ -135,8 +135,10 @@ def error_state_table(config: EstimatorConfig, *, absolute_yaw: bool) -> tuple[S
              StateSpec("dthy", "rad", rad(ini.roll_pitch_deg), 0.0), StateSpec("dthz", "rad", yaw_sigma, 0.0)]
     rows += [StateSpec(n, "rad/s", rad(ini.gyro_bias_deg_s), noise.gyro_bias_rw_rad_s2_sqrt_hz)
              for n in ("dbgx", "dbgy", "dbgz")]
-    rows += [StateSpec(n, "m/s^2", ini.accel_bias_m_s2, noise.accel_bias_rw_m_s3_sqrt_hz)
-             for n in ("dbax", "dbay", "dbaz")]
+    rw_z = noise.accel_bias_rw_z_m_s3_sqrt_hz  # z may walk faster (cross-axis coupling, as the direct filter)
+    rows += [StateSpec(n, "m/s^2", ini.accel_bias_m_s2, noise.accel_bias_rw_m_s3_sqrt_hz) for n in ("dbax", "dbay")]
+    rows.append(StateSpec("dbaz", "m/s^2", ini.accel_bias_m_s2,
+                          noise.accel_bias_rw_m_s3_sqrt_hz if rw_z is None else rw_z))
     rows += [StateSpec(n, "m/s", ini.wind_m_s, noise.wind_rw_m_s_sqrt_s) for n in ("dwn", "dwe")]
     rows += [StateSpec(n, "-", ini.mag_bias, noise.mag_bias_rw_sqrt_s) for n in ("dbmx", "dbmy", "dbmz")]
     rows.append(StateSpec("dbb", "m", ini.baro_bias_m, noise.baro_bias_rw_m_sqrt_s))
@@ -578,6 +580,7 @@ def _assemble(inputs: ReplayInputs, k: dict, out_f, out_sd, diag_f, diag_i, coun
         "alignment": {"tilt_source": inputs.alignment.tilt_source, "yaw_source": inputs.alignment.yaw_source,
                       "still_window_s": inputs.alignment.still_window_s},
         "gps_delay_s": inputs.gps_delay_s,
+        "gps_time_rule": inputs.gps_time_rule,
         "baro_offset_m": inputs.baro_offset_m,
         "mag_field_source": inputs.mag_field_source,
         "origin": {"lat_deg": inputs.origin.lat_deg, "lon_deg": inputs.origin.lon_deg,
