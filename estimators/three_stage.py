@@ -251,6 +251,7 @@ class KernelParams(NamedTuple):
     fixed_wing_nav: bool  # stage 3 fixed-wing mode
     paper_gps_velocity: bool  # GPS velocity as ground speed and course
     height_from_gps: bool  # no barometer: height from GPS
+    initial_height_m: float  # height above the origin until the first height sample (NaN: no height source)
     cascade_inflation: bool
     qc1: np.ndarray  # (2, 2) random-walk densities [rad^2/s]
     qc2: float
@@ -730,7 +731,8 @@ def run_kernel(imu_t, imu_gyro, imu_accel, ev_t, ev_kind, ev_imu, ev_val, ev_var
     next_accel_t = imu_t[0]
     # low-passed inputs and their sample times
     va, va_t = 0.0, -math.inf
-    height, vertical_speed, height_t = math.nan, math.nan, -math.inf
+    height, height_t = prm.initial_height_m, -math.inf
+    vertical_speed = 0.0 if math.isfinite(height) else math.nan
     gps_vel, gps_vel_t = np.zeros(3), -math.inf
     gps_acc = np.zeros(3)
     gps_pos, gps_pos_var = np.zeros(2), np.zeros(2)
@@ -787,7 +789,7 @@ def run_kernel(imu_t, imu_gyro, imu_accel, ev_t, ev_kind, ev_imu, ev_val, ev_var
                 va_t = t
             elif kind == BARO or (kind == GPS_POS and prm.height_from_gps):
                 sample = values[0] if kind == BARO else -values[2]
-                if math.isnan(height):
+                if height_t == -math.inf:  # first sample
                     height, vertical_speed = sample, 0.0
                 else:
                     rate = (sample - height) / prm.baro_lpf_s  # rate of the first-order filter
@@ -898,12 +900,24 @@ class KernelSetup:
     modes: dict[str, str] = field(default_factory=dict)
 
 
+def initial_yaw(inputs: ReplayInputs) -> tuple[float, str]:
+    """Initial heading [rad] and its source: the replay alignment's, else (no magnetometer, e.g. ``heading="sun"``)
+    the first sun vector, tilt-compensated with the aligned roll and pitch (scalar form of math note 3.2)."""
+    align, ev = inputs.alignment, inputs.events
+    if align.yaw_source != "none" or not inputs.plan.has_sun:
+        return align.yaw_rad, align.yaw_source
+    first = int(np.flatnonzero(ev.kind == SUN)[0])
+    sun_b, sun_n = ev.values[first, :3], ev.values[first, 3:6]
+    return events.yaw_from_magnetometer(sun_b, align.roll_rad, align.pitch_rad, sun_n), "sun"
+
+
 def kernel_setup(inputs: ReplayInputs, config: EstimatorConfig, options: ThreeStageOptions) -> KernelSetup:
     """State tables, initial values and kernel parameters of one run (modes from the sensor plan, math note 7)."""
     plan, align, noise = inputs.plan, inputs.alignment, config.noise
     fixed_wing_nav = plan.fixed_wing and plan.has_airspeed
-    absolute_yaw = plan.has_mag or plan.has_sun or align.yaw_source != "none"
-    tables = {"stage1": stage1_states(config), "stage2": stage2_states(config, absolute_yaw=absolute_yaw),
+    yaw_rad, yaw_source = initial_yaw(inputs)
+    tables = {"stage1": stage1_states(config),
+              "stage2": stage2_states(config, absolute_yaw=yaw_source != "none"),
               "stage3": (stage3_fixed_wing_states(config, options) if fixed_wing_nav
                          else stage3_multicopter_states(config))}
     n3 = len(tables["stage3"])
@@ -924,7 +938,9 @@ def kernel_setup(inputs: ReplayInputs, config: EstimatorConfig, options: ThreeSt
         airspeed_model=plan.fixed_wing and plan.has_airspeed,
         gps_acceleration=options.gps_acceleration and plan.has_gps and not plan.has_airspeed,
         fixed_wing_nav=fixed_wing_nav, paper_gps_velocity=config.gps_velocity_mode == "paper",
-        height_from_gps=plan.has_gps and not plan.has_baro, cascade_inflation=options.cascade_inflation,
+        height_from_gps=plan.has_gps and not plan.has_baro,
+        initial_height_m=-float(align.position_ned_m[2]) if plan.has_baro or plan.has_gps else math.nan,
+        cascade_inflation=options.cascade_inflation,
         qc1=process_noise_psd(tables["stage1"]), qc2=float(process_noise_psd(tables["stage2"])[0, 0]),
         qc3=process_noise_psd(tables["stage3"]), a3_multicopter=stage3_mc_A(),
         p1_0=initial_covariance(tables["stage1"]), p2_0=initial_covariance(tables["stage2"]),
@@ -944,7 +960,7 @@ def kernel_setup(inputs: ReplayInputs, config: EstimatorConfig, options: ThreeSt
              "stage3": ("fixed_wing" if fixed_wing_nav else "multicopter") if plan.has_gps else "none",
              "height": "baro" if plan.has_baro else "gps" if plan.has_gps else "none"}
     return KernelSetup(tables=tables, x1=np.array([align.roll_rad, align.pitch_rad]), P1=params.p1_0.copy(),
-                       x2=np.array([align.yaw_rad]), P2=params.p2_0.copy(), x3=np.zeros(n3),
+                       x2=np.array([yaw_rad]), P2=params.p2_0.copy(), x3=np.zeros(n3),
                        P3=params.p3_0.copy(), params=params, modes=modes)
 
 
@@ -1044,7 +1060,7 @@ def run(flight_log: FlightLog, inputs: ReplayInputs, config: EstimatorConfig, *,
         "states": {stage: [s.name for s in table] for stage, table in setup.tables.items()},
         "final_state": {"stage1": x1.tolist(), "stage2": x2.tolist(), "stage3": x3.tolist()},
         "gyro_bias_rad_s": setup.params.gyro_bias_rad_s.tolist(),
-        "alignment": {"tilt_source": inputs.alignment.tilt_source, "yaw_source": inputs.alignment.yaw_source,
+        "alignment": {"tilt_source": inputs.alignment.tilt_source, "yaw_source": initial_yaw(inputs)[1],
                       "still_window_s": inputs.alignment.still_window_s},
         "stage3_start_s": float(o[navigating, O_TIME][0]) if navigating.any() else None,
         "gps_delay_s": inputs.gps_delay_s,
