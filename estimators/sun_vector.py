@@ -1007,7 +1007,8 @@ def solve_sun_log(sun_frame: pd.DataFrame, device: SunDevice | None = None, nois
     noise_a : float, optional
         Current noise [A]; estimated with :func:`current_noise_a` when omitted.
     up_body : array-like, shape (3,) or (N, 3), optional
-        Up unit vector in body FRD per sample (``R_nb^T (0, 0, -1)`` from an attitude) for the sky view factors;
+        Up unit vector in body FRD per sample for the sky view factors, ``R_nb^T (0, 0, -1)``, e.g.
+        ``-ingest.frames.quat_to_matrix(q)[:, 2, :]`` from the onboard attitude interpolated to the sun samples;
         level flight when omitted.
     config : SunSolverConfig, optional
         Solver thresholds.
