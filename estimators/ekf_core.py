@@ -163,13 +163,14 @@ def scalar_update(P, H, nu, r_var, gate, dx, ph):
         Normalised innovation squared ``nu^2 / S``.
     """
     n = P.shape[0]
+    # ph = P H^T, using the symmetry of P to walk rows of P for the non-zero entries of H
     for i in range(n):
-        s = 0.0
-        for j in range(n):
-            h_j = H[j]
-            if h_j != 0.0:
-                s += P[i, j] * h_j
-        ph[i] = s
+        ph[i] = 0.0
+    for j in range(n):
+        h_j = H[j]
+        if h_j != 0.0:
+            for i in range(n):
+                ph[i] += P[j, i] * h_j
     hph = 0.0
     for i in range(n):
         hph += H[i] * ph[i]
@@ -181,18 +182,22 @@ def scalar_update(P, H, nu, r_var, gate, dx, ph):
     nis = nu * nu / S
     if gate > 0.0 and nis > gate * gate:
         return False, S, nis
-    # K = P H^T / S; dx = K nu. Joseph: P+ = (I - K H) P (I - K H)^T + K R K^T, using H P = ph^T:
-    # M = P - K ph^T;  M H^T = ph - K hph;  P+ = M - (M H^T) K^T + R K K^T.
+    # K = P H^T / S; dx = K nu. Joseph form P+ = (I - K H) P (I - K H)^T + K R K^T expanded with H P = ph^T
+    # (exact for any gain K): P+ = P - K ph^T - ph K^T + (H P H^T + R) K K^T. Unlike the short form
+    # P - K ph^T it stays quadratic in K, so a round-off error in K changes P+ only to second order (the point
+    # of Joseph's form). It is symmetric: the upper triangle is computed from the symmetrised prior and
+    # mirrored.
     inv_s = 1.0 / S
     for i in range(n):
         dx[i] = ph[i] * inv_s  # K, turned into K nu below
     for i in range(n):
         k_i = dx[i]
-        mh_i = ph[i] - k_i * hph
-        for j in range(n):
+        ph_i = ph[i]
+        for j in range(i, n):
             k_j = dx[j]
-            P[i, j] = P[i, j] - k_i * ph[j] - mh_i * k_j + r_var * k_i * k_j
-    symmetrize(P)
+            v = 0.5 * (P[i, j] + P[j, i]) - k_i * ph[j] - ph_i * k_j + S * k_i * k_j
+            P[i, j] = v
+            P[j, i] = v
     for i in range(n):
         dx[i] *= nu
     return True, S, nis

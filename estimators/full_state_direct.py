@@ -382,77 +382,79 @@ def measurement(x, kind, comp, values, field, layout, R, S, W, H):
         return x[comp]
     if kind in (AIRSPEED, SIDESLIP):
         iw = layout[L_W]
-        a = np.zeros(3)  # R^T wbar
+        # a = R^T wbar (air mass velocity in body axes), v_r = V - a
+        a0 = a1 = a2 = 0.0
         if iw >= 0:
-            for i in range(3):
-                a[i] = R[0, i] * x[iw] + R[1, i] * x[iw + 1]
-        vr = np.empty(3)
-        vr[0], vr[1], vr[2] = u - a[0], v - a[1], w - a[2]
+            a0 = R[0, 0] * x[iw] + R[1, 0] * x[iw + 1]
+            a1 = R[0, 1] * x[iw] + R[1, 1] * x[iw + 1]
+            a2 = R[0, 2] * x[iw] + R[1, 2] * x[iw + 1]
+        vr0, vr1, vr2 = u - a0, v - a1, w - a2
         if kind == AIRSPEED:
-            va = max(math.sqrt(vr[0] * vr[0] + vr[1] * vr[1] + vr[2] * vr[2]), 1e-3)
-            for i in range(3):
-                H[3 + i] = vr[i] / va
+            va = max(math.sqrt(vr0 * vr0 + vr1 * vr1 + vr2 * vr2), 1e-3)
+            H[3], H[4], H[5] = vr0 / va, vr1 / va, vr2 / va
             # d v_r/dTheta = -[a]x W and v_r^T [a]x = (v_r x a)^T, so dVa/dTheta = -(v_r x a)^T W / Va
-            c0 = vr[1] * a[2] - vr[2] * a[1]
-            c1 = vr[2] * a[0] - vr[0] * a[2]
-            c2 = vr[0] * a[1] - vr[1] * a[0]
+            c0 = vr1 * a2 - vr2 * a1
+            c1 = vr2 * a0 - vr0 * a2
+            c2 = vr0 * a1 - vr1 * a0
             for j in range(3):
                 H[6 + j] = -(c0 * W[0, j] + c1 * W[1, j] + c2 * W[2, j]) / va
             if iw >= 0:
-                H[iw] = -(vr[0] * R[0, 0] + vr[1] * R[0, 1] + vr[2] * R[0, 2]) / va
-                H[iw + 1] = -(vr[0] * R[1, 0] + vr[1] * R[1, 1] + vr[2] * R[1, 2]) / va
+                H[iw] = -(vr0 * R[0, 0] + vr1 * R[0, 1] + vr2 * R[0, 2]) / va
+                H[iw + 1] = -(vr0 * R[1, 0] + vr1 * R[1, 1] + vr2 * R[1, 2]) / va
             return va
         # sideslip: e2^T v_r; e2^T [a]x = (a2, 0, -a0)
         H[4] = 1.0
         for j in range(3):
-            H[6 + j] = -(a[2] * W[0, j] - a[0] * W[2, j])
+            H[6 + j] = -(a2 * W[0, j] - a0 * W[2, j])
         if iw >= 0:
             H[iw] = -R[0, 1]
             H[iw + 1] = -R[1, 1]
-        return vr[1]
+        return vr1
     if kind in (GPS_VEL, ZERO_VELOCITY):
-        # rows of R V and of -R [V]x W for the NED axes
-        rows = np.zeros((3, n))
-        vel = np.empty(3)
+        # NED velocity R V; a scalar h is a weighted sum of its rows: dh/dV = sum_i w_i R[i, :],
+        # dh/dTheta = -sum_i w_i (R [V]x W)[i, :]
+        vel0 = R[0, 0] * u + R[0, 1] * v + R[0, 2] * w
+        vel1 = R[1, 0] * u + R[1, 1] * v + R[1, 2] * w
+        vel2 = R[2, 0] * u + R[2, 1] * v + R[2, 2] * w
+        if comp < 3:
+            w0, w1, w2 = (1.0 if comp == 0 else 0.0), (1.0 if comp == 1 else 0.0), (1.0 if comp == 2 else 0.0)
+            h = vel0 if comp == 0 else (vel1 if comp == 1 else vel2)
+        elif comp == 3:
+            vg = max(math.hypot(vel0, vel1), 1e-3)
+            w0, w1, w2 = vel0 / vg, vel1 / vg, 0.0
+            h = vg
+        else:
+            vg2 = max(vel0 * vel0 + vel1 * vel1, 1e-6)
+            w0, w1, w2 = -vel1 / vg2, vel0 / vg2, 0.0
+            h = math.atan2(vel1, vel0)
+        r0 = w0 * R[0, 0] + w1 * R[1, 0] + w2 * R[2, 0]
+        r1 = w0 * R[0, 1] + w1 * R[1, 1] + w2 * R[2, 1]
+        r2 = w0 * R[0, 2] + w1 * R[1, 2] + w2 * R[2, 2]
+        H[3], H[4], H[5] = r0, r1, r2
         for j in range(3):
+            # column j of [V]x W is V x W[:, j]
             c0 = v * W[2, j] - w * W[1, j]
             c1 = w * W[0, j] - u * W[2, j]
             c2 = u * W[1, j] - v * W[0, j]
-            for i in range(3):
-                rows[i, 6 + j] = -(R[i, 0] * c0 + R[i, 1] * c1 + R[i, 2] * c2)
-        for i in range(3):
-            vel[i] = R[i, 0] * u + R[i, 1] * v + R[i, 2] * w
-            for j in range(3):
-                rows[i, 3 + j] = R[i, j]
-        if comp < 3:
-            for j in range(n):
-                H[j] = rows[comp, j]
-            return vel[comp]
-        vg = max(math.hypot(vel[0], vel[1]), 1e-3)
-        if comp == 3:
-            for j in range(n):
-                H[j] = (vel[0] * rows[0, j] + vel[1] * rows[1, j]) / vg
-            return vg
-        for j in range(n):
-            H[j] = (-vel[1] * rows[0, j] + vel[0] * rows[1, j]) / (vg * vg)
-        return math.atan2(vel[1], vel[0])
-    # body-frame unit vectors: magnetometer (field) and sun (values[3:6])
-    ref = np.empty(3)
+            H[6 + j] = -(r0 * c0 + r1 * c1 + r2 * c2)
+        return h
+    # body-frame unit vectors: magnetometer (field) and sun (values[3:6]); b = R^T ref
     if kind == MAG:
-        ref[0], ref[1], ref[2] = field[0], field[1], field[2]
+        f0, f1, f2 = field[0], field[1], field[2]
     else:
-        ref[0], ref[1], ref[2] = values[3], values[4], values[5]
-    b = np.empty(3)
-    for i in range(3):
-        b[i] = R[0, i] * ref[0] + R[1, i] * ref[1] + R[2, i] * ref[2]
+        f0, f1, f2 = values[3], values[4], values[5]
+    b0 = R[0, 0] * f0 + R[1, 0] * f1 + R[2, 0] * f2
+    b1 = R[0, 1] * f0 + R[1, 1] * f1 + R[2, 1] * f2
+    b2 = R[0, 2] * f0 + R[1, 2] * f1 + R[2, 2] * f2
     # d(R^T a)/dTheta = [b]x W: row comp of [b]x times W
-    bx = np.empty((3, 3))
-    bx[0, 0], bx[0, 1], bx[0, 2] = 0.0, -b[2], b[1]
-    bx[1, 0], bx[1, 1], bx[1, 2] = b[2], 0.0, -b[0]
-    bx[2, 0], bx[2, 1], bx[2, 2] = -b[1], b[0], 0.0
+    if comp == 0:
+        x0, x1, x2, h = 0.0, -b2, b1, b0
+    elif comp == 1:
+        x0, x1, x2, h = b2, 0.0, -b0, b1
+    else:
+        x0, x1, x2, h = -b1, b0, 0.0, b2
     for j in range(3):
-        H[6 + j] = bx[comp, 0] * W[0, j] + bx[comp, 1] * W[1, j] + bx[comp, 2] * W[2, j]
-    h = b[comp]
+        H[6 + j] = x0 * W[0, j] + x1 * W[1, j] + x2 * W[2, j]
     if kind == MAG:
         ibm = layout[L_BM]
         if ibm >= 0:
