@@ -144,6 +144,12 @@ class ThreeStageOptions:
         IMU and estimator at 50 Hz).
     accel_tau : float
         Eq 52 penalty factor on the body-y accelerometer variance [-] (1: none; ``calib.tau`` selects it).
+    accel_sigma_floor_m_s2, mag_sigma_floor, gps_pos_sigma_floor_m, gps_vel_sigma_floor_m_s : float
+        Floors of the measurement noise [m/s^2 at the update rate, field units, m, m/s]: with no bias states the
+        three-stage R must cover model error (accelerometer and magnetometer biases, unmodelled accelerations, the
+        GPS velocity lag of the coordinated-turn model; math note 3.1 "R must cover MODEL error", 3.3 floors
+        0.5 m / 0.1 m/s), whatever the sensor noise of the configuration. Defaults: the paper's in-flight
+        accelerometer noise at 50 Hz (Table 4, up to 0.25 m/s^2), the unit-vector range of math note 3.2.
     accel_gate : float
         Stage-1 gate in innovation standard deviations (math note 3.1: 3..5).
     manoeuvre_threshold_m_s2 : float
@@ -169,6 +175,10 @@ class ThreeStageOptions:
 
     accel_update_rate_hz: float = 50.0
     accel_tau: float = 1.0
+    accel_sigma_floor_m_s2: float = 0.25
+    mag_sigma_floor: float = 0.03
+    gps_pos_sigma_floor_m: float = 0.5
+    gps_vel_sigma_floor_m_s: float = 0.1
     accel_gate: float = 5.0
     manoeuvre_threshold_m_s2: float = 0.5
     gps_acceleration: bool = False
@@ -188,6 +198,7 @@ class ThreeStageOptions:
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
                 raise ValueError(f"ThreeStageOptions.{name} must be a positive number, got {value!r}")
         for name in ("manoeuvre_threshold_m_s2", "wind_pseudo_sigma_m_s", "deviation_sigma_deg",
+                     "accel_sigma_floor_m_s2", "mag_sigma_floor", "gps_pos_sigma_floor_m", "gps_vel_sigma_floor_m_s",
                      "deviation_rw_deg_sqrt_s"):
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
@@ -242,6 +253,7 @@ class KernelParams(NamedTuple):
     gyro_psd: np.ndarray  # (3,) gyro noise density squared per axis [rad^2/s]
     accel_psd: float  # accelerometer noise density squared [m^2/s^3]
     accel_var: np.ndarray  # (3,) stage-1 R per axis at the update rate [m^2/s^4], tau on y
+    variance_floor: np.ndarray  # (n_kinds,) model-error floor of each event kind's variances
     accel_update_dt_s: float
     covariance_dt_s: float  # interval of the deferred stage-1 and stage-3 covariance propagation [s]
     accel_gate: float
@@ -773,7 +785,7 @@ def run_kernel(imu_t, imu_gyro, imu_accel, ev_t, ev_kind, ev_imu, ev_val, ev_var
                 break
             kind = ev_kind[ie]
             values = ev_val[ie]
-            variances = ev_var[ie]
+            variances = np.maximum(ev_var[ie], prm.variance_floor[kind])
             if kind == OUTPUT:
                 # divergence check at the output rate: never a non-finite output row (reset to the last healthy)
                 _check_health(x1, P1, x1_safe, prm.p1_0, counters)
@@ -921,8 +933,13 @@ def kernel_setup(inputs: ReplayInputs, config: EstimatorConfig, options: ThreeSt
               "stage3": (stage3_fixed_wing_states(config, options) if fixed_wing_nav
                          else stage3_multicopter_states(config))}
     n3 = len(tables["stage3"])
-    accel_var = np.full(3, noise.accel_noise_m_s2_sqrt_hz ** 2 * options.accel_update_rate_hz)
+    accel_var = np.full(3, max(noise.accel_noise_m_s2_sqrt_hz ** 2 * options.accel_update_rate_hz,
+                               options.accel_sigma_floor_m_s2 ** 2))
     accel_var[1] *= options.accel_tau
+    variance_floor = np.zeros(len(events.SENSOR_NAMES))
+    variance_floor[MAG] = options.mag_sigma_floor ** 2
+    variance_floor[GPS_POS] = options.gps_pos_sigma_floor_m ** 2
+    variance_floor[GPS_VEL] = options.gps_vel_sigma_floor_m_s ** 2
     angle_cap = np.pi ** 2
     max_var3 = np.full(n3, 1e12)
     if fixed_wing_nav:
@@ -932,7 +949,7 @@ def kernel_setup(inputs: ReplayInputs, config: EstimatorConfig, options: ThreeSt
     params = KernelParams(
         gravity_m_s2=inputs.gravity_m_s2, gyro_bias_rad_s=np.asarray(align.gyro_bias_rad_s, dtype=float),
         gyro_psd=np.full(3, noise.gyro_noise_rad_s_sqrt_hz ** 2), accel_psd=noise.accel_noise_m_s2_sqrt_hz ** 2,
-        accel_var=accel_var, accel_update_dt_s=1.0 / options.accel_update_rate_hz,
+        accel_var=accel_var, variance_floor=variance_floor, accel_update_dt_s=1.0 / options.accel_update_rate_hz,
         covariance_dt_s=1.0 / config.timing.covariance_rate_hz, accel_gate=options.accel_gate,
         manoeuvre_threshold_m_s2=options.manoeuvre_threshold_m_s2,
         airspeed_model=plan.fixed_wing and plan.has_airspeed,
