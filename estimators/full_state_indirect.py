@@ -494,8 +494,8 @@ def gps_lever_arm_m(flight_log: FlightLog) -> np.ndarray:
     return np.array([v if math.isfinite(v) else 0.0 for v in values])
 
 
-def run(flight_log: FlightLog, inputs: ReplayInputs, config: EstimatorConfig, *, inject: str = "group"
-        ) -> EstimatorRun:
+def run(flight_log: FlightLog, inputs: ReplayInputs, config: EstimatorConfig, *, inject: str = "group",
+        backend: str = "numba") -> EstimatorRun:
     """Run the error-state filter on prepared inputs (the registry entry of :mod:`estimators.api`).
 
     Parameters
@@ -508,6 +508,8 @@ def run(flight_log: FlightLog, inputs: ReplayInputs, config: EstimatorConfig, *,
     inject : {"group", "scalar"}
         Inject the error estimate and reset after each sensor's group of scalar updates (default, the paper's
         Alg. 3) or after every scalar (re-linearised, math note 5.4 flag).
+    backend : {"numba", "numpy"}
+        Compiled kernel or the plain-NumPy twin :mod:`estimators.eskf_numpy` (slow; tests only).
     """
     started = time.perf_counter()
     k = kernel_inputs(inputs, config, flight_log, inject=inject)
@@ -520,10 +522,18 @@ def run(flight_log: FlightLog, inputs: ReplayInputs, config: EstimatorConfig, *,
     diag_f = np.zeros((capacity, 4))
     diag_i = np.zeros((capacity, 3), dtype=np.int64)
     counters = np.zeros(N_COUNTERS, dtype=np.int64)
+    args = (imu.time_s, imu.gyro_rad_s, imu.accel_m_s2, ev.time_s, ev.kind, ev.imu_index, ev.values, ev.variances,
+            k["x0"], k["P0"], k["sel"], k["params"], k["gates"], k["rw_psd"], k["min_var"], k["max_var"], out_f,
+            out_sd, diag_f, diag_i, counters)
     kernel_started = time.perf_counter()
-    x_final, _ = run_kernel(imu.time_s, imu.gyro_rad_s, imu.accel_m_s2, ev.time_s, ev.kind, ev.imu_index,
-                            ev.values, ev.variances, k["x0"], k["P0"], k["sel"], k["params"], k["gates"],
-                            k["rw_psd"], k["min_var"], k["max_var"], out_f, out_sd, diag_f, diag_i, counters)
+    if backend == "numba":
+        x_final, _ = run_kernel(*args)
+    elif backend == "numpy":
+        from estimators.eskf_numpy import run_reference
+
+        x_final, _ = run_reference(*args)
+    else:
+        raise ValueError(f"backend must be 'numba' or 'numpy', got {backend!r}")
     kernel_s = time.perf_counter() - kernel_started
     return _assemble(inputs, k, out_f, out_sd, diag_f, diag_i, counters, x_final, inject=inject,
                      timings={"kernel": kernel_s, "total": time.perf_counter() - started},
