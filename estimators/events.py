@@ -82,6 +82,8 @@ GPS_MAX_EPH_M = 10.0
 GPS_ORIGIN_MAX_EPH_M = 5.0
 #: Magnetometer stream accepted when its median field strength lies in this range [gauss] (math note 7).
 MAG_STRENGTH_RANGE_GAUSS = (0.15, 1.0)
+#: The sun gives an initial yaw only when its horizontal component (cos of the elevation) exceeds this.
+MIN_SUN_HORIZONTAL = 0.2
 #: A still window's specific-force norm may differ this much from gravity (accelerometer offset) [m/s^2].
 STILL_GRAVITY_TOLERANCE_M_S2 = 1.0
 #: A magnetometer whose inclination at the start differs more than this from the reference field is not used [deg].
@@ -197,7 +199,8 @@ class Alignment:
     still_window_s : tuple of (float, float) or None
         ``(start, end)`` of the still window used, or None for an in-air start.
     yaw_source : str
-        ``"mag"``, ``"onboard_attitude"`` (reference borrowed from the autopilot), ``"gps_course"`` or ``"none"``.
+        ``"mag"``, ``"sun"`` (gravity + sun vector), ``"onboard_attitude"`` (reference borrowed from the
+        autopilot), ``"gps_course"`` or ``"none"``.
     tilt_source : str
         ``"still_window"``, ``"onboard_attitude"`` or ``"accelerometer"`` (in-air levelling).
     """
@@ -378,14 +381,15 @@ def build_replay_inputs(flight_log: FlightLog, config: EstimatorConfig | None = 
         values = mag[1] / mag_strength
         parts.append((mag[0], MAG, values, np.full(values.shape, config.noise.mag_sigma ** 2)))
 
-    has_sun = False
+    has_sun, sun_part = False, None
     if heading in ("sun", "mag+sun"):
         if sun_observations is None and flight_log.has("sun"):
             sun_observations = sun_observations_from_log(flight_log, origin, warnings)
         if sun_observations is None or len(sun_observations) == 0:
             raise InputError(f"heading {heading!r} needs sun-vector observations (a sun-device CSV with the sun "
                              "above the horizon and a GPS fix for the ephemeris)", source=source, field="heading")
-        parts.append(_sun_events(sun_observations, source))
+        sun_part = _sun_events(sun_observations, source)
+        parts.append(sun_part)
         has_sun = True
 
     airspeed = _sensor_rows(flight_log, "airspeed", ("tas_m_s",), skipped)
@@ -418,8 +422,8 @@ def build_replay_inputs(flight_log: FlightLog, config: EstimatorConfig | None = 
         parts.append((times, ZERO_VELOCITY, np.zeros((len(times), 3)),
                       np.full((len(times), 3), config.noise.zero_velocity_sigma_m_s ** 2)))
 
-    alignment, mag_rejection = _alignment(flight_log, imu, gps, mag, mag_field, mag_strength, origin, baro,
-                                          baro_offset_m, gravity, config, warnings)
+    alignment, mag_rejection = _alignment(flight_log, imu, gps, mag, mag_field, mag_strength, sun_part, origin,
+                                          baro, baro_offset_m, gravity, config, warnings)
     if mag_rejection is not None:
         skipped["mag"] = mag_rejection
         parts = [part for part in parts if part[1] != MAG]
@@ -809,8 +813,9 @@ def tilt_from_specific_force(f_b: np.ndarray) -> tuple[float, float]:
 
 
 def yaw_from_magnetometer(m_b: np.ndarray, roll_rad: float, pitch_rad: float, field_ned: np.ndarray) -> float:
-    """Yaw [rad] from a body-frame field vector, tilt-compensated (math note 3.2): the level-frame field
-    ``Ry(theta) Rx(phi) m_b`` has heading ``D - psi`` with D the reference field's declination."""
+    """Yaw [rad] from a body-frame vector whose NED direction ``field_ned`` is known (magnetic field or sun),
+    tilt-compensated (math note 3.2): the level-frame vector ``Ry(theta) Rx(phi) m_b`` has heading ``D - psi``
+    with D the heading of the reference vector (the declination for the magnetic field)."""
     cr, sr = math.cos(roll_rad), math.sin(roll_rad)
     cp, sp = math.cos(pitch_rad), math.sin(pitch_rad)
     # Rx(phi) m, then Ry(theta)
@@ -822,7 +827,7 @@ def yaw_from_magnetometer(m_b: np.ndarray, roll_rad: float, pitch_rad: float, fi
 
 
 def _alignment(flight_log: FlightLog, imu: ImuSamples, gps: _GpsRows | None, mag, mag_field: np.ndarray,
-               mag_strength: float, origin: Origin, baro, baro_offset_m: float, gravity: float,
+               mag_strength: float, sun, origin: Origin, baro, baro_offset_m: float, gravity: float,
                config: EstimatorConfig, warnings: list[str]) -> tuple[Alignment, str | None]:
     """Initial state, and why the magnetometer must not be used (None when it is consistent)."""
     t0 = float(imu.time_s[0])
@@ -873,6 +878,13 @@ def _alignment(flight_log: FlightLog, imu: ImuSamples, gps: _GpsRows | None, mag
                              f"{dip_expected:.1f} deg (miscalibrated or rotated magnetometer)")
         else:
             yaw, yaw_source = yaw_from_magnetometer(m_b, roll, pitch, mag_field), "mag"
+    if yaw_source == "none" and sun is not None and len(sun[0]):
+        # gravity + sun (math note 5.5 "TRIAD"): the sun's horizontal direction, tilt-compensated like the field
+        t_end = still_s[1] if still_s is not None else sun[0][0] + 0.5
+        sel = sun[0] <= max(t_end, sun[0][0])
+        s_b, s_n = sun[2][sel, 0:3].mean(axis=0), sun[2][sel, 3:6].mean(axis=0)
+        if math.hypot(s_n[0], s_n[1]) > MIN_SUN_HORIZONTAL:
+            yaw, yaw_source = yaw_from_magnetometer(s_b, roll, pitch, s_n), "sun"
     has_onboard = onboard is not None and len(onboard) and {"qw", "qx", "qy", "qz"} <= set(onboard.columns)
     if yaw_source == "none" and has_onboard:
         yaw, yaw_source = _onboard_euler_at(onboard, t0)[2], "onboard_attitude"
