@@ -16,8 +16,9 @@ barometer offset only with barometer and GPS.
 
 Propagation (math note 5.3): ``q <- q (x) Exp(omega dt)`` (exact exponential map), mid-interval attitude for the
 specific force; the covariance with the exact discrete transition ``F`` of that step and
-``Q = F_bg N_g^2/dt F_bg^T + F_ba N_a^2/dt F_ba^T + diag(K^2) dt`` at ``timing.covariance_rate_hz`` (and before
-every update), with the inputs averaged over the interval.
+``Q = F_bg N_g^2/dt F_bg^T + F_ba N_a^2/dt F_ba^T + diag(K^2) dt`` at ``timing.covariance_rate_hz`` and before
+every update, with the inputs averaged over the interval (output epochs report the last propagated covariance,
+at most one covariance interval old).
 
 Updates (math note 5.4, sequential scalar, Joseph form and gating of :func:`estimators.ekf_core.scalar_update`):
 baro ``h = -p_d + b_b``; GPS position ``h = p + R l_b`` and velocity ``h = v + R (omega x l_b)`` with the antenna
