@@ -9,14 +9,16 @@ Three small EKFs in series, each feeding the next its estimate as an input (mode
    with the specific force and the rates averaged over the update interval. Fixed-wing with airspeed: the steady
    flight model with the centripetal term (eq 20/21 corrected); otherwise gravity only (``V_a = 0``) or, with
    ``gps_acceleration``, ``h = C_bn (a_n - g_n)`` with the low-passed derivative of the GPS velocity (math note
-   7.1). R: the accelerometer density of the config at the update rate, eq 52's ``tau`` on the body-y entry, plus
-   ``d^2`` when the specific-force magnitude misses the model by ``d > manoeuvre_threshold_m_s2``.
-2. **Heading** ``x2 = psi`` [rad], propagated with ``psi_dot = (q s_ph + r c_ph) / c_th`` (eq 22 corrected),
-   updated with the magnetometer (unit vector against the unit World Magnetic Model field, eq 24/25 corrected) and/or
-   the photocell sun vector (tangent-plane form of math note 8.5), whichever the replay inputs carry
+   7.1). R: the accelerometer density of the config at the update rate (floored: it must cover model error), eq
+   52's ``tau`` on the body-y entry, plus ``d^2`` when the specific-force magnitude misses the model by
+   ``d > manoeuvre_threshold_m_s2``.
+2. **Heading** ``x2 = psi_2`` [rad], propagated with ``psi_dot = (q s_ph + r c_ph) / c_th`` (eq 22 corrected),
+   updated with the magnetometer (unit vector against the unit World Magnetic Model field, eq 24/25 corrected)
+   and/or the photocell sun vector (tangent-plane form of math note 8.5), whichever the replay inputs carry
    (``heading="mag"|"sun"|"mag+sun"`` of :func:`estimators.events.build_replay_inputs`). Cascade consistency: R is
    inflated by the stage-1 covariance, ``R_eff = R + J P1 J^T`` with ``J = dh/d(phi, theta)``; the correlated
-   vector is whitened (Cholesky) before its scalar updates.
+   vector is gated as a whole (chi-square) and whitened (Cholesky) before its scalar updates. Without an initial
+   heading from the replay alignment (no magnetometer), the first sun vector gives it.
 3. **Navigation** at the GPS epochs (Algorithm 1, T31). Fixed-wing with airspeed: ``x3 = (p_n, p_e, V_g, chi,
    w_n, w_e, dev_a, dev_b, dev_c)`` (eq 26-33 corrected) driven by ``u = (V_a, q, r, phi, theta, psi_2)``, where
    the heading ``psi = psi_2 - (dev_a + dev_b sin psi_2 + dev_c cos psi_2)`` is the stage-2 heading corrected by a
@@ -24,12 +26,13 @@ Three small EKFs in series, each feeding the next its estimate as an input (mode
    vertical field seen through stage 1's tilt error, makes the heading error a constant plus a sinusoid of the
    heading; observable through the wind triangle in turns, like B&M's psi state, math note 3.3 / 7.2; zero sigmas
    give the paper's 6 states]; the reported yaw is that corrected heading while this stage runs. Per GPS epoch the
-   wind-triangle
-   pseudo-measurement (``R = J diag(sigma_Va^2, P_psi) J^T + sigma_w^2 I``, whitened, ungated), then GPS north,
-   east, then velocity (NED form, or ground speed and course with ``gps_velocity_mode="paper"``). It starts at the
-   first GPS epoch with a ground speed above V_min (the model is invalid on the ground / in the hand launch).
-   Otherwise (multicopter, or no airspeed): ``x3 = (p_n, p_e, v_n, v_e)`` driven by the NED acceleration from the
-   accelerometer and the stage-1/2 attitude (math note 3.4); no wind.
+   wind-triangle pseudo-measurement (``R = J diag(sigma_Va^2, P_psi) J^T + sigma_w^2 I``, whitened, ungated), then
+   GPS north, east, then velocity (NED form, or ground speed and course with ``gps_velocity_mode="paper"``). It
+   starts at the first GPS epoch with a ground speed above V_min (the model is invalid on the ground and in the
+   hand launch): position, velocity and wind are NaN before. Otherwise (multicopter, or no airspeed):
+   ``x3 = (p_n, p_e, v_n, v_e)`` driven by the NED acceleration from the accelerometer and the stage-1/2 attitude
+   (math note 3.4), from the first GPS epoch; no wind. Covariances of stages 1 and 3 are propagated at
+   ``timing.covariance_rate_hz`` and before their updates (states at the IMU rate).
    Height is not estimated: it is the low-passed barometer altitude (offset to GPS height removed by the replay
    inputs), or the low-passed GPS height without a barometer (math note 7.4); the vertical speed is the low-passed
    rate of that filter. The airspeed input is the low-passed true airspeed (math note 3.0).
@@ -39,8 +42,8 @@ scalar update), innovation ``nu``, its variance ``S``, ``NIS = nu^2 / S``. Every
 row; the sensors are the shared event kinds plus ``accel`` (stage 1) and ``wind`` (the pseudo-measurement). The
 innovations of whitened vector updates (magnetometer, sun, wind) are in whitened units (R = 1).
 
-``backend="python"`` runs the same kernel uncompiled (numba's ``py_func`` chain via ``NUMBA_DISABLE_JIT=1`` in a
-fresh process): the plain-NumPy reference of the twin test.
+There is no separate NumPy twin: run with ``NUMBA_DISABLE_JIT=1`` (a fresh process), the same code is the plain
+Python/NumPy reference the twin test compares the compiled kernel with.
 """
 
 from __future__ import annotations

@@ -22,6 +22,7 @@ from estimators.evaluation import PAPER_TABLE_2, config_for_simulation, rms_erro
 from estimators.results import STATE_COLUMNS
 from ingest import load_flight_log
 from ingest.frames import euler_to_matrix
+from ingest.sun_log import with_sun
 
 TESTS_DIR = Path(__file__).resolve().parent
 REPO_DIR = TESTS_DIR.parent
@@ -515,3 +516,19 @@ def test_paper_mission_three_stage_is_the_least_accurate(paper_mission):
             assert ours >= 0.98 * others[quantity].min(), quantity
         else:
             assert ours >= best_other, quantity
+
+
+@pytest.mark.parametrize("heading", ["sun", "mag+sun"])
+def test_sun_vector_heading_on_simulated_flight(heading):
+    """Stage 2 with the photocell sun vector (tangent-plane updates), alone or with the magnetometer, on the bundled
+    flight with a failing cell; without the magnetometer the initial heading comes from the first sun vector."""
+    log = with_sun(load_flight_log(SAMPLE_LOGS_DIR / "failed_cell.ulg"), SAMPLE_LOGS_DIR / "failed_cell_sun.csv")
+    config = config_for_simulation(json.loads((SAMPLE_LOGS_DIR / "failed_cell_sim.json").read_text()))
+    result = run_estimators(log, estimators="three_stage", config=config, heading=heading)
+    report = result.reports["three_stage"]
+    assert report.details["modes"]["stage2"] == heading
+    assert report.details["alignment"]["yaw_source"] == ("sun" if heading == "sun" else "mag")
+    sun = result.diagnostics[result.diagnostics["sensor"] == "sun"]
+    assert len(sun) > 1000 and sun["accepted"].mean() > 0.95
+    rms = rms_errors(result.states, log, after_s=60.0).loc["three_stage"]
+    assert rms["yaw_deg"] < 1.5 and rms["wind_m_s"] < 0.3, rms
