@@ -17,8 +17,7 @@ Three small EKFs in series, each feeding the next its estimate as an input (mode
    and/or the photocell sun vector (tangent-plane form of math note 8.5), whichever the replay inputs carry
    (``heading="mag"|"sun"|"mag+sun"`` of :func:`estimators.events.build_replay_inputs`). Cascade consistency: R is
    inflated by the stage-1 covariance, ``R_eff = R + J P1 J^T`` with ``J = dh/d(phi, theta)``; the correlated
-   vector is gated as a whole (chi-square) and whitened (Cholesky) before its scalar updates. Without an initial
-   heading from the replay alignment (no magnetometer), the first sun vector gives it.
+   vector is gated as a whole (chi-square) and whitened (Cholesky) before its scalar updates.
 3. **Navigation** at the GPS epochs (Algorithm 1, T31). Fixed-wing with airspeed: ``x3 = (p_n, p_e, V_g, chi,
    w_n, w_e, dev_a, dev_b, dev_c)`` (eq 26-33 corrected) driven by ``u = (V_a, q, r, phi, theta, psi_2)``, where
    the heading ``psi = psi_2 - (dev_a + dev_b sin psi_2 + dev_c cos psi_2)`` is the stage-2 heading corrected by a
@@ -915,24 +914,12 @@ class KernelSetup:
     modes: dict[str, str] = field(default_factory=dict)
 
 
-def initial_yaw(inputs: ReplayInputs) -> tuple[float, str]:
-    """Initial heading [rad] and its source: the replay alignment's, else (no magnetometer, e.g. ``heading="sun"``)
-    the first sun vector, tilt-compensated with the aligned roll and pitch (scalar form of math note 3.2)."""
-    align, ev = inputs.alignment, inputs.events
-    if align.yaw_source != "none" or not inputs.plan.has_sun:
-        return align.yaw_rad, align.yaw_source
-    first = int(np.flatnonzero(ev.kind == SUN)[0])
-    sun_b, sun_n = ev.values[first, :3], ev.values[first, 3:6]
-    return events.yaw_from_magnetometer(sun_b, align.roll_rad, align.pitch_rad, sun_n), "sun"
-
-
 def kernel_setup(inputs: ReplayInputs, config: EstimatorConfig, options: ThreeStageOptions) -> KernelSetup:
     """State tables, initial values and kernel parameters of one run (modes from the sensor plan, math note 7)."""
     plan, align, noise = inputs.plan, inputs.alignment, config.noise
     fixed_wing_nav = plan.fixed_wing and plan.has_airspeed
-    yaw_rad, yaw_source = initial_yaw(inputs)
     tables = {"stage1": stage1_states(config),
-              "stage2": stage2_states(config, absolute_yaw=yaw_source != "none"),
+              "stage2": stage2_states(config, absolute_yaw=align.yaw_source != "none"),
               "stage3": (stage3_fixed_wing_states(config, options) if fixed_wing_nav
                          else stage3_multicopter_states(config))}
     n3 = len(tables["stage3"])
@@ -980,7 +967,7 @@ def kernel_setup(inputs: ReplayInputs, config: EstimatorConfig, options: ThreeSt
              "stage3": ("fixed_wing" if fixed_wing_nav else "multicopter") if plan.has_gps else "none",
              "height": "baro" if plan.has_baro else "gps" if plan.has_gps else "none"}
     return KernelSetup(tables=tables, x1=np.array([align.roll_rad, align.pitch_rad]), P1=params.p1_0.copy(),
-                       x2=np.array([yaw_rad]), P2=params.p2_0.copy(), x3=np.zeros(n3),
+                       x2=np.array([align.yaw_rad]), P2=params.p2_0.copy(), x3=np.zeros(n3),
                        P3=params.p3_0.copy(), params=params, modes=modes)
 
 
@@ -1080,7 +1067,7 @@ def run(flight_log: FlightLog, inputs: ReplayInputs, config: EstimatorConfig, *,
         "states": {stage: [s.name for s in table] for stage, table in setup.tables.items()},
         "final_state": {"stage1": x1.tolist(), "stage2": x2.tolist(), "stage3": x3.tolist()},
         "gyro_bias_rad_s": setup.params.gyro_bias_rad_s.tolist(),
-        "alignment": {"tilt_source": inputs.alignment.tilt_source, "yaw_source": initial_yaw(inputs)[1],
+        "alignment": {"tilt_source": inputs.alignment.tilt_source, "yaw_source": inputs.alignment.yaw_source,
                       "still_window_s": inputs.alignment.still_window_s},
         "stage3_start_s": float(o[navigating, O_TIME][0]) if navigating.any() else None,
         "gps_delay_s": inputs.gps_delay_s,

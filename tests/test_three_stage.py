@@ -521,7 +521,7 @@ def test_paper_mission_three_stage_is_the_least_accurate(paper_mission):
 @pytest.mark.parametrize("heading", ["sun", "mag+sun"])
 def test_sun_vector_heading_on_simulated_flight(heading):
     """Stage 2 with the photocell sun vector (tangent-plane updates), alone or with the magnetometer, on the bundled
-    flight with a failing cell; without the magnetometer the initial heading comes from the first sun vector."""
+    flight with a failing cell; without the magnetometer the initial heading comes from gravity and the sun."""
     log = with_sun(load_flight_log(SAMPLE_LOGS_DIR / "failed_cell.ulg"), SAMPLE_LOGS_DIR / "failed_cell_sun.csv")
     config = config_for_simulation(json.loads((SAMPLE_LOGS_DIR / "failed_cell_sim.json").read_text()))
     result = run_estimators(log, estimators="three_stage", config=config, heading=heading)
