@@ -66,14 +66,6 @@ def process_noise_psd(table: tuple[StateSpec, ...]) -> np.ndarray:
     return np.diag([spec.sigma_process ** 2 for spec in table])
 
 
-def state_index(table: tuple[StateSpec, ...], name: str) -> int:
-    """Index of the state ``name`` in ``table`` (ValueError naming the table's states when absent)."""
-    names = [spec.name for spec in table]
-    if name not in names:
-        raise ValueError(f"no state {name!r}; states are {names}")
-    return names.index(name)
-
-
 # --------------------------------------------------------------------------------------------------------------
 # Shared attitude helpers
 # --------------------------------------------------------------------------------------------------------------

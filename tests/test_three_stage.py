@@ -305,9 +305,10 @@ def test_state_tables_build_positive_definite_matrices(table):
     qc = m.process_noise_psd(table)
     assert p0.shape == qc.shape == (len(table), len(table))
     assert np.all(np.linalg.eigvalsh(p0) > 0) and np.all(np.linalg.eigvalsh(qc) > 0)
-    assert m.state_index(table, table[-1].name) == len(table) - 1
-    with pytest.raises(ValueError, match="no state"):
-        m.state_index(table, "nope")
+    names = [spec.name for spec in table]
+    assert len(set(names)) == len(names)
+    suffix = {"rad": "_rad", "m": "_m", "m/s": "_m_s"}
+    assert all(spec.name.endswith(suffix[spec.unit]) for spec in table)  # units in the names
 
 
 # ---------------------------------------------------------------- whole runs
