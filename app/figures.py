@@ -129,7 +129,7 @@ AXIS_COLORS = ("#1f77b4", "#ff7f0e", "#2ca02c", "#9467bd", "#8c564b", "#e377c2",
 
 
 def segment_figure(imu_norms: pd.DataFrame, segments: pd.DataFrame, max_points: int = MAX_POINTS) -> go.Figure:
-    """Gyro and specific-force norms over the whole log with the candidate and chosen segments shaded; drag a
+    """Gyro and specific-force (f) norms over the whole log with the candidate and chosen segments shaded; drag a
     box on it to pick a window.
 
     Parameters
@@ -141,15 +141,14 @@ def segment_figure(imu_norms: pd.DataFrame, segments: pd.DataFrame, max_points: 
     """
     fig = make_subplots(rows=2, cols=1, shared_xaxes=True, vertical_spacing=0.06)
     time_s = imu_norms.index.to_numpy(float)
-    for row, (column, name) in enumerate((("gyro_norm_rad_s", "|gyro|"), ("accel_norm_m_s2", "|specific force|")),
-                                         start=1):
+    for row, (column, name) in enumerate((("gyro_norm_rad_s", "|gyro|"), ("accel_norm_m_s2", "|f|")), start=1):
         fig.add_trace(line(time_s, imu_norms[column].to_numpy(float), name, max_points=max_points,
                            color=AXIS_COLORS[row - 1]), row=row, col=1)
     for seg in segments.itertuples(index=False):
         fig.add_vrect(x0=seg.start_s, x1=seg.end_s, fillcolor=SEGMENT_COLORS.get(seg.kind, "rgba(0,0,0,0.1)"),
                       line_width=2 if seg.kind == "user" else 0, line_color="#d62728", layer="below")
-    base_layout(fig, y_title="|gyro| [rad/s]", height=340, title="Calibration segment (drag a box to pick one)")
-    fig.update_yaxes(title_text="|specific force| [m/s^2]", row=2, col=1)
+    base_layout(fig, y_title="|gyro| [rad/s]", height=420, title="Calibration segment (drag a box to pick one)")
+    fig.update_yaxes(title_text="|f| [m/s^2]", row=2, col=1)
     fig.update_xaxes(title_text="", row=1, col=1)
     fig.update_xaxes(title_text=TIME_TITLE, row=2, col=1)
     fig.update_layout(dragmode="select", selectdirection="h", hovermode="closest")

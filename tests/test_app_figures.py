@@ -92,7 +92,7 @@ def test_segment_figure_marks_segments_and_bounds_points():
     segments = pd.DataFrame([("stationary", 100.0, 400.0, ""), ("steady", 900.0, 1500.0, "")],
                             columns=["kind", "start_s", "end_s", "reason"])
     fig = figures.segment_figure(norms, segments)
-    assert [trace.name for trace in fig.data] == ["|gyro|", "|specific force|"]
+    assert [trace.name for trace in fig.data] == ["|gyro|", "|f|"]
     assert all(len(trace.x) <= figures.MAX_POINTS for trace in fig.data)
     assert len(fig.layout.shapes) == 2 * 2 and fig.layout.dragmode == "select"  # a band per segment and row
     assert fig.layout.yaxis.title.text == "|gyro| [rad/s]" and fig.layout.yaxis2.title.text.endswith("[m/s^2]")

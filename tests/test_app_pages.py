@@ -135,7 +135,7 @@ def test_estimators_run_compare_and_diagnose(open_page, workspace_dir):
     assert not at.exception and not at.error
     sha256 = at.sidebar.selectbox[0].value
     assert len(Workspace(workspace_dir).list_runs(sha256)) == 1
-    [rms] = _frames(at, lambda v: "Roll Angle (deg)" in v.columns)
+    [rms] = [table.value for table in at.table if "Roll Angle (deg)" in table.value.columns]
     assert list(rms.index) == ["three_stage", "full_state_direct", "full_state_indirect"]
     assert list(rms.columns)[-1] == "Wind (m/s)" and rms["Yaw Angle (deg)"].notna().all()
     [summary] = _frames(at, lambda v: "mean NIS [-]" in v.columns)

@@ -37,6 +37,8 @@ if submitted:
             calibration = adapters.run_calibration(root, sha256, noise)
             run_id = runs.replay_and_store(workspace, sha256, log, settings, calibration,
                                            progress=lambda fraction, text: bar.progress(fraction, text=text))
+        bar.empty()
+        st.toast(f"Run {run_id} stored in the workspace.")
     else:
         st.info("A run with these settings is stored already: showing it.")
     st.session_state[RUN_KEY] = run_id
@@ -69,7 +71,7 @@ else:
     st.caption(f"Against the {'ground truth' if result.reference == 'truth' else 'onboard estimate (no truth)'};"
                " position = horizontal distance, wind = horizontal vector difference, course where ground speed "
                f">= {comparison.MIN_COURSE_SPEED_M_S:g} m/s.")
-    st.dataframe(adapters.rms_table(root, sha256, run_id).style.format("{:.2f}", na_rep="–"), key="rms_table")
+    st.table(adapters.rms_table(root, sha256, run_id).style.format("{:.2f}", na_rep="–"))
 
 PANELS = {
     "Attitude": [("roll_deg", "roll [deg]"), ("pitch_deg", "pitch [deg]"), ("yaw_deg", "yaw [deg]")],

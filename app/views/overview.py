@@ -36,7 +36,7 @@ if meta.warnings:
             st.warning(warning)
 
 st.subheader("Streams")
-st.dataframe(tables.streams_table(meta), hide_index=True, column_config={
+st.dataframe(tables.streams_table(meta), hide_index=True, placeholder="–", column_config={
     "rate_hz": st.column_config.NumberColumn("rate [Hz]", format="%.1f"),
     "longest_gap_s": st.column_config.NumberColumn("longest gap [s]", format="%.2f"),
     "longest_gap_at_s": st.column_config.NumberColumn("longest gap at [s]", format="%.2f"),
