@@ -531,7 +531,7 @@ def _stage2_update(t, kind, values, variances, prm, x1, P1, x2, P2, dx, ph, diag
     phi, theta = x1[0], x1[1]
     if kind == MAG:
         z = values[:3].copy()
-        norm = math.sqrt(z @ z)
+        norm = math.sqrt(z[0] ** 2 + z[1] ** 2 + z[2] ** 2)
         if not norm > 0.0:
             return
         z /= norm
