@@ -21,6 +21,7 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 
+import numpy as np
 import pandas as pd
 
 from estimators.config import EstimatorConfig
@@ -139,14 +140,14 @@ def run_estimators(flight_log: FlightLog, *, estimators: str | Sequence[str] = D
         run = function(flight_log, inputs, config)
         timings = {"prepare": prepare_s, **run.report.timings_s}
         reports[name] = _with_timings(run.report, timings)
-        states.append(run.states.assign(estimator=name))
-        diagnostics.append(run.diagnostics.assign(estimator=name))
+        label = pd.Categorical.from_codes(np.full(len(run.states), len(states)), categories=list(names))
+        states.append(run.states.assign(estimator=label))
+        label = pd.Categorical.from_codes(np.full(len(run.diagnostics), len(diagnostics)), categories=list(names))
+        diagnostics.append(run.diagnostics.assign(estimator=label))
     state_frame = pd.concat(states, ignore_index=True)
     extra = [c for c in state_frame.columns if c not in STATE_COLUMNS]
     state_frame = state_frame.loc[:, [*STATE_COLUMNS, *extra]]
-    state_frame["estimator"] = pd.Categorical(state_frame["estimator"], categories=list(names))
     diagnostic_frame = pd.concat(diagnostics, ignore_index=True).loc[:, list(DIAGNOSTIC_COLUMNS)]
-    diagnostic_frame["estimator"] = pd.Categorical(diagnostic_frame["estimator"], categories=list(names))
     return ReplayResult(states=state_frame, diagnostics=diagnostic_frame, reports=reports)
 
 

@@ -51,7 +51,8 @@ def symmetrize(P):
 def transition_matrix(A, dt, F):
     """Second-order transition matrix ``F = I + A dt + (A dt)^2 / 2`` (math note 2.2), written into ``F``.
 
-    Rows of ``A`` that are zero (states without dynamics) give identity rows and are skipped.
+    Rows of ``A`` that are zero (states without dynamics) give identity rows and are skipped, and so are the
+    zero rows of ``A`` in the product ``A A``.
 
     Parameters
     ----------
@@ -64,36 +65,38 @@ def transition_matrix(A, dt, F):
     """
     n = A.shape[0]
     half_dt2 = 0.5 * dt * dt
+    row_active = np.zeros(n, dtype=np.bool_)
+    for i in range(n):
+        for k in range(n):
+            if A[i, k] != 0.0:
+                row_active[i] = True
+                break
     for i in range(n):
         for j in range(n):
             F[i, j] = 0.0
         F[i, i] = 1.0
-        row_active = False
-        for k in range(n):
-            if A[i, k] != 0.0:
-                row_active = True
-                break
-        if not row_active:
+        if not row_active[i]:
             continue
         for k in range(n):
             a_ik = A[i, k]
             if a_ik == 0.0:
                 continue
-            c = a_ik * half_dt2
-            for j in range(n):
-                F[i, j] += c * A[k, j]
             F[i, k] += a_ik * dt
+            if row_active[k]:
+                c = a_ik * half_dt2
+                for j in range(n):
+                    F[i, j] += c * A[k, j]
 
 
 @njit(cache=True)
 def propagate_covariance(P, F, Qd, work, active):
-    """``P <- F P F^T + Qd``, then symmetrised; ``P, F, Qd, work`` (n, n), ``work`` and ``active`` (n,) bool are
-    scratch.
+    """``P <- F P F^T + Qd`` for a symmetric ``Qd``; ``P, F, Qd`` (n, n); ``work`` (n, n) and ``active`` (n,)
+    bool are scratch.
 
     With ``D = F - I``: ``F P F^T = P + D P + (D P)^T + D P D^T``; only the rows of ``D`` that are non-zero
     (states with dynamics, ``active``) contribute, which is exact and several times cheaper for the filters'
     sparse ``F``. ``D P`` is computed as ``F P - P`` on the active rows and ``D P D^T`` as ``(D P) F^T - D P`` on
-    the active block, so no copy of ``D`` is needed.
+    the active block, so no copy of ``D`` is needed. The result is exactly symmetric.
     """
     n = P.shape[0]
     for i in range(n):
@@ -116,18 +119,17 @@ def propagate_covariance(P, F, Qd, work, active):
             for j in range(n):
                 work[i, j] += f_ik * P[k, j]
     for i in range(n):
+        a_i = active[i]
         for j in range(i, n):
-            v = P[i, j] + 0.5 * (Qd[i, j] + Qd[j, i])
-            if active[i]:
+            v = P[i, j] + Qd[i, j]
+            if a_i:
                 v += work[i, j]
             if active[j]:
                 v += work[j, i]
-                if active[i]:
+                if a_i:
                     s = -work[i, j]
                     for k in range(n):
-                        f_jk = F[j, k]
-                        if f_jk != 0.0:
-                            s += work[i, k] * f_jk
+                        s += work[i, k] * F[j, k]
                     v += s
             P[i, j] = v
             P[j, i] = v

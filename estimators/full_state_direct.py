@@ -320,7 +320,8 @@ def jacobian(x, gyro, g, layout, R, S, W, A):
 
 @njit(cache=True)
 def process_noise(x, ng2, na2, rw_var, R, S, W, Qc):
-    """Continuous process noise ``Qc = G_g N_g^2 G_g^T + G_a N_a^2 G_a^T + diag(rw_var)`` (per second).
+    """Continuous process noise ``Qc = G_g N_g^2 G_g^T + G_a N_a^2 G_a^T + diag(rw_var)`` (per second; the
+    discrete ``Qd = Qc dt``, math note 2.2 option i).
 
     ``rw_var`` (n,) holds the squared random-walk densities of the bias and wind states (0 elsewhere).
     """
@@ -625,7 +626,13 @@ def run_kernel(imu_t, imu_gyro, imu_accel, ev_t, ev_kind, ev_imu, ev_val, ev_var
             kind = ev_kind[j]
             values = ev_val[j]
             if kind == OUTPUT:
-                if not ekf_core.is_healthy(x, P):
+                # P is checked at every covariance step and updates keep it finite; the state integrated since
+                # then is checked here
+                finite = True
+                for i in range(n):
+                    if not math.isfinite(x[i]):
+                        finite = False
+                if not finite:
                     ekf_core.reset_filter(x, P, x_safe, P0)
                     counters[C_RESETS] += 1
                 for i in range(n):

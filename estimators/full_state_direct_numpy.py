@@ -277,7 +277,9 @@ def run_reference(imu_t, imu_gyro, imu_accel, ev_t, ev_kind, ev_imu, ev_val, ev_
                 break
             kind, values = ev_kind[j], ev_val[j]
             if kind == OUTPUT:
-                reset_if_diverged()
+                if not np.all(np.isfinite(x)):
+                    x, P = x_safe.copy(), P0.copy()
+                    counters[C_RESETS] += 1
                 x_safe = x.copy()
                 _output(x, P, layout, field, t, out_f, n_out)
                 out_x[n_out], out_sx[n_out] = x, np.sqrt(np.maximum(np.diag(P), 0.0))

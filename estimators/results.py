@@ -163,16 +163,19 @@ def diagnostics_frame(diag_f: np.ndarray, diag_i: np.ndarray, count: int) -> pd.
     """
     diag_f, diag_i = diag_f[:count], diag_i[:count]
     sensor_codes = diag_i[:, 0]
-    sensors = np.asarray(SENSOR_NAMES, dtype=object)[sensor_codes]
-    width = max(len(c) for c in COMPONENT_NAMES)
-    table = np.array([tuple(c) + ("",) * (width - len(c)) for c in COMPONENT_NAMES], dtype=object)
-    components = table[sensor_codes, diag_i[:, 1]]
     return pd.DataFrame({
         "time_s": diag_f[:, 0],
-        "sensor": pd.Categorical(sensors, categories=SENSOR_NAMES),
-        "component": pd.Categorical(components),
+        "sensor": pd.Categorical.from_codes(sensor_codes, categories=SENSOR_NAMES),
+        "component": pd.Categorical.from_codes(_COMPONENT_CODES[sensor_codes, diag_i[:, 1]],
+                                               categories=COMPONENT_CATEGORIES),
         "innovation": diag_f[:, 1],
         "innovation_var": diag_f[:, 2],
         "nis": diag_f[:, 3],
         "accepted": diag_i[:, 2].astype(bool),
     })
+
+
+#: Every component name, the categories of the diagnostics' ``component`` column.
+COMPONENT_CATEGORIES = tuple(dict.fromkeys(name for names in COMPONENT_NAMES for name in names))
+_COMPONENT_CODES = np.array([[COMPONENT_CATEGORIES.index(names[c]) if c < len(names) else -1
+                              for c in range(max(len(n) for n in COMPONENT_NAMES))] for names in COMPONENT_NAMES])
