@@ -18,6 +18,12 @@
     forward) is stuck at 0 A from 40 s to 100 s.
 ``static``
     Ten minutes at rest on the ground (Allan deviation, static calibration).
+``mag_disturbed``
+    About five minutes: 30 s at rest, launch, circling climb to 150 m, two loiter circles, a cruise leg, a half
+    turn and a cruise back; the solar-panel disturbance of the magnetometer is twelve times the ``paper`` one
+    (0.06 gauss/A: up to 0.24 gauss at full panel current, 0.17 gauss in this flight, a third of the earth
+    field), so it changes with the bank angle through the sun's incidence on the wing. The proof case of
+    sun-aided heading (``tests/test_sun_aided.py``).
 """
 
 from __future__ import annotations
@@ -106,4 +112,10 @@ SCENARIOS: dict[str, Scenario] = {
                               Turn(360.0, radius_m=100.0)), initial_heading_deg=300.0),
         sensors=SensorSpec(sun=SunCellGrade(failed_cell=2, failed_window_s=(40.0, 100.0))), seed=7),
     "static": Scenario(name="static", mission=Mission(legs=(Still(600.0),), initial_heading_deg=120.0), seed=11),
+    "mag_disturbed": Scenario(
+        name="mag_disturbed",
+        mission=Mission(legs=(Still(30.0), HandLaunch(), ChangeAltitude(150.0, 3.0, turn_radius_m=150.0),
+                              Turn(2 * 360.0, radius_m=100.0), Cruise(45.0), Turn(180.0, radius_m=120.0),
+                              Cruise(45.0)), initial_heading_deg=300.0),
+        sensors=SensorSpec(mag=MagGrade(solar_gauss_per_a=0.06)), seed=13),
 }
