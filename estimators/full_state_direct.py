@@ -260,12 +260,12 @@ def derivative(x, gyro, accel, g, layout, R, S, W, xdot):
 
 @njit(cache=True)
 def jacobian(x, gyro, g, layout, R, S, W, A):
-    """Continuous Jacobian ``A = df/dx`` (eq 37 / math note 4 blocks) at ``x`` with gyro input ``gyro``."""
-    n = x.shape[0]
+    """Continuous Jacobian ``A = df/dx`` (eq 37 / math note 4 blocks) at ``x`` with gyro input ``gyro``.
+
+    Only the rows of position, velocity and attitude are written (the bias, wind and offset states have no
+    dynamics): ``A`` must be zero elsewhere (allocate it with ``np.zeros`` and reuse it).
+    """
     euler_matrices(x[6], x[7], x[8], R, S, W)
-    for i in range(n):
-        for j in range(n):
-            A[i, j] = 0.0
     p, q, r = gyro[0] - x[9], gyro[1] - x[10], gyro[2] - x[11]
     u, v, w = x[3], x[4], x[5]
     # dp/dV = R; dp/dTheta = -R [V]x W
@@ -319,18 +319,18 @@ def jacobian(x, gyro, g, layout, R, S, W, A):
 
 
 @njit(cache=True)
-def process_noise(x, ng2, na2, rw_var, R, S, W, Qc):
-    """Continuous process noise ``Qc = G_g N_g^2 G_g^T + G_a N_a^2 G_a^T + diag(rw_var)`` (per second; the
-    discrete ``Qd = Qc dt``, math note 2.2 option i).
+def process_noise(x, ng2, na2, rw_var, dt, R, S, W, Qd):
+    """Discrete process noise ``Qd = (G_g N_g^2 G_g^T + G_a N_a^2 G_a^T + diag(rw_var)) dt`` (math note 2.2
+    option i: white-noise densities, variance ``density^2 dt``).
 
-    ``rw_var`` (n,) holds the squared random-walk densities of the bias and wind states (0 elsewhere).
+    ``rw_var`` (n,) holds the squared random-walk densities of the bias and wind states (0 elsewhere). Only the
+    diagonal and the velocity/attitude block are written: ``Qd`` must be zero elsewhere (allocate it with
+    ``np.zeros`` and reuse it).
     """
     n = x.shape[0]
     euler_matrices(x[6], x[7], x[8], R, S, W)
     for i in range(n):
-        for j in range(n):
-            Qc[i, j] = 0.0
-        Qc[i, i] = rw_var[i]
+        Qd[i, i] = rw_var[i] * dt
     u, v, w = x[3], x[4], x[5]
     # [V]x
     vx = np.empty((3, 3))
@@ -352,10 +352,10 @@ def process_noise(x, ng2, na2, rw_var, R, S, W, Qc):
                 vv += vx[i, k] * vx[j, k]
                 vt += vx[i, k] * S[j, k]
                 tt += S[i, k] * S[j, k]
-            Qc[3 + i, 3 + j] += ng2 * vv + (na2 if i == j else 0.0)
-            Qc[3 + i, 6 + j] += ng2 * vt
-            Qc[6 + j, 3 + i] += ng2 * vt
-            Qc[6 + i, 6 + j] += ng2 * tt
+            Qd[3 + i, 3 + j] = (ng2 * vv + (na2 if i == j else 0.0) + (rw_var[3 + i] if i == j else 0.0)) * dt
+            Qd[3 + i, 6 + j] = ng2 * vt * dt
+            Qd[6 + j, 3 + i] = ng2 * vt * dt
+            Qd[6 + i, 6 + j] = (ng2 * tt + (rw_var[6 + i] if i == j else 0.0)) * dt
 
 
 @njit(cache=True)
@@ -519,10 +519,7 @@ def _flush_covariance(P, x_cov, acc, g, params, layout, rw_var, min_var, max_var
     mean_gyro = acc[1:4] / dt
     jacobian(x_cov, mean_gyro, g, layout, R, S, W, A)
     ekf_core.transition_matrix(A, dt, F)
-    process_noise(x_cov, params[P_NG2], params[P_NA2], rw_var, R, S, W, Qc)
-    for i in range(Qc.shape[0]):
-        for j in range(Qc.shape[0]):
-            Qc[i, j] *= dt
+    process_noise(x_cov, params[P_NG2], params[P_NA2], rw_var, dt, R, S, W, Qc)
     ekf_core.propagate_covariance(P, F, Qc, work, active)
     counters[C_FLUSHES] += 1
     if counters[C_FLUSHES] % PD_CHECK_EVERY == 0:
@@ -569,9 +566,9 @@ def run_kernel(imu_t, imu_gyro, imu_accel, ev_t, ev_kind, ev_imu, ev_val, ev_var
     R = np.empty((3, 3))
     S = np.empty((3, 3))
     W = np.empty((3, 3))
-    A = np.empty((n, n))
+    A = np.zeros((n, n))  # jacobian() and process_noise() write their non-zero blocks only
     F = np.empty((n, n))
-    Qc = np.empty((n, n))
+    Qc = np.zeros((n, n))
     work = np.empty((n, n))
     active = np.empty(n, dtype=np.bool_)
     H = np.empty(n)

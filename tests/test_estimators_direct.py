@@ -65,7 +65,7 @@ def test_process_jacobian_matches_finite_differences(seed):
     rng = np.random.default_rng(seed)
     x = _random_state(rng)
     gyro, accel = rng.normal(0, 0.3, 3), rng.normal(0, 3, 3) + np.array([0, 0, -G])
-    A = np.empty((N_FULL, N_FULL))
+    A = np.zeros((N_FULL, N_FULL))
     fsd.jacobian(x, gyro, G, FULL_LAYOUT, *_scratch(), A)
     A_fd = _central_difference(_numba_f(gyro, accel), x)
     np.testing.assert_allclose(A, A_fd, rtol=RTOL, atol=ATOL)
@@ -83,8 +83,8 @@ def test_process_noise_is_input_jacobian_quadratic_form(seed):
     gyro, accel = rng.normal(0, 0.3, 3), rng.normal(0, 3, 3)
     ng2, na2 = 3e-6, 1e-3
     rw = rng.uniform(0, 1e-6, N_FULL)
-    Qc = np.empty((N_FULL, N_FULL))
-    fsd.process_noise(x, ng2, na2, rw, *_scratch(), Qc)
+    Qc = np.zeros((N_FULL, N_FULL))
+    fsd.process_noise(x, ng2, na2, rw, 1.0, *_scratch(), Qc)
     G_g = _central_difference(lambda g: _numba_f(g, accel)(x), gyro)
     G_a = _central_difference(lambda a: _numba_f(gyro, a)(x), accel)
     expected = ng2 * G_g @ G_g.T + na2 * G_a @ G_a.T + np.diag(rw)
@@ -128,7 +128,7 @@ def test_transition_matches_matrix_exponential_for_small_steps():
 
     rng = np.random.default_rng(7)
     x = _random_state(rng)
-    A = np.empty((N_FULL, N_FULL))
+    A = np.zeros((N_FULL, N_FULL))
     fsd.jacobian(x, rng.normal(0, 0.3, 3), G, FULL_LAYOUT, *_scratch(), A)
     F = np.empty_like(A)
     from estimators import ekf_core
