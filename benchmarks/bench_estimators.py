@@ -231,6 +231,10 @@ def main() -> None:
         log = load_flight_log(log_path)
         print(f"   {len(log['imu'])} IMU samples")
         per_sample_times(names, log, args.repeat)
+        start = time.perf_counter()
+        run_estimators(log, estimators=names)
+        print(f"run_estimators with {', '.join(names)} (events, kernels, tables; log already loaded): "
+              f"{time.perf_counter() - start:.2f} s")
         print("== 4. replay wall time")
         replay_wall_time(log_path, names)
         print("== 5. FilterPy comparison")

@@ -11,7 +11,6 @@ from pathlib import Path
 
 import pandas as pd
 
-from calib.export import read_calibration
 from estimators.api import DEFAULT_ESTIMATORS, ESTIMATORS, ReplayResult, parse_estimator_names, run_estimators
 from estimators.config import EstimatorConfig, config_from_calibration
 from estimators.events import HEADING_SOURCES
@@ -51,6 +50,8 @@ def run(args: argparse.Namespace) -> int:
         raise InputError("--device describes the sun-device log: give --sun too")
     config = EstimatorConfig()
     if args.calib is not None:
+        from calib.export import read_calibration  # deferred: the calibration stack is slow to import
+
         config = config_from_calibration(read_calibration(args.calib), config)
     log = load_flight_log(args.log)
     if args.sun is not None:
