@@ -686,7 +686,7 @@ def sun_observations_from_log(flight_log: FlightLog, origin: Origin, warnings: l
     if origin.source != "gps" or flight_log.meta.utc_offset_s is None:
         warnings.append("sun heading: no GPS position or UTC time for the ephemeris; sun vector not used")
         return None
-    solved = solve_sun_log(flight_log["sun"])
+    solved = solve_sun_log(flight_log["sun"], device=flight_log.meta.sun_device)
     solved = solved[solved["status"] == "ok"]
     if solved.empty:
         warnings.append("sun heading: no epoch with a valid sun-vector solution")
