@@ -31,11 +31,12 @@ from estimators import sun_vector as sv
 from estimators.api import DEFAULT_ESTIMATORS, estimator_function, run_estimators
 from estimators.config import EstimatorConfig
 from estimators.evaluation import config_for_simulation, rms_errors, truth_at
-from ingest import load_sun_device, with_sun
+from ingest import attach_sun, load_sun_device, with_sun
 from ingest.frames import euler_to_matrix, euler_to_quat, quat_to_matrix
+from ingest.sun_device import SunDevice
 from ingest.ulog_reader import load_flight_log
 from sim.px4_export import side_file
-from sim.scenarios import SCENARIOS
+from sim.scenarios import SCENARIOS, SensorSpec
 from sim.simulate import simulate
 from tests.conftest import SAMPLE_LOGS_DIR
 
@@ -155,6 +156,23 @@ def test_sun_only_full_state_filters_on_the_paper_mission(paper_mission, estimat
     assert errors["position_m"] <= 10.0  # the GPS Gauss-Markov floor of this log is ~5 m
     sun = result.diagnostics[result.diagnostics["sensor"] == "sun"]
     assert sun["accepted"].mean() > 0.99
+
+
+def test_replay_uses_the_logs_sun_device_geometry():
+    """A device with 35 deg faces turned 90 deg on the airframe (the two-minute failed-cell flight, healthy cells):
+    the replay solves the currents with the geometry attached to the log, so the sun-only heading is right; with
+    the default geometry the same currents give tens of degrees of yaw error."""
+    device = SunDevice(tilt_deg=35.0, mount_rpy_deg=(0.0, 0.0, 90.0))
+    scenario = dataclasses.replace(SCENARIOS["failed_cell"], sensors=SensorSpec(device=device))
+    result = simulate(scenario, np.random.default_rng(1), seed=1)
+    config = config_for_simulation(side_file(result))
+    log = attach_sun(result.log, result.log["sun"], device=device)
+    yaw = rms_errors(run_estimators(log, config=config, heading="sun").states, log, after_s=30.0)["yaw_deg"]
+    assert (yaw <= YAW_BOUND_DEG).all(), yaw.to_dict()
+    default = attach_sun(result.log, result.log["sun"])
+    yaw_default = rms_errors(run_estimators(default, estimators="full_state_indirect", config=config,
+                                            heading="sun").states, default, after_s=30.0)["yaw_deg"]
+    assert (yaw_default > 10.0).all()
 
 
 # ----------------------------------------------------------------------------------------------------------------
