@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from estimators import environment
-from estimators.api import ESTIMATORS, estimator_function, run_estimators
+from estimators.api import ESTIMATORS, run_estimators
 from estimators.events import SENSOR_NAMES
 from ingest.ulog_reader import load_flight_log
 
@@ -27,13 +27,6 @@ def load(real_logs_dir):
     return _load
 
 
-def _available(name):
-    try:
-        estimator_function(name)
-    except RuntimeError as error:
-        pytest.skip(str(error))
-
-
 def _angle_rms_deg(states, reference, column):
     t = states["time_s"].to_numpy()
     expected = np.interp(t, reference.index.to_numpy(), np.degrees(np.unwrap(np.radians(reference[column]))))
@@ -44,7 +37,6 @@ def _angle_rms_deg(states, reference, column):
 @pytest.mark.parametrize("estimator", tuple(ESTIMATORS))
 @pytest.mark.parametrize("log_name", REAL_LOGS)
 def test_runs_to_the_end_without_nan(load, log_name, estimator):
-    _available(estimator)
     log = load(log_name)
     result = run_estimators(log, estimators=[estimator])
     states = result.states
@@ -82,7 +74,6 @@ def _onboard_position_errors(log, states, origin):
 @pytest.mark.parametrize("estimator", FULL_STATE)
 def test_hand_moved_bench_log_agrees_with_onboard_attitude(load, estimator):
     """sample.ulg: multicopter moved by hand (+-22 deg roll), no GPS: 2 deg RMS roll/pitch, 5 deg yaw."""
-    _available(estimator)
     log = load("sample.ulg")
     states = run_estimators(log, estimators=[estimator]).states
     onboard = log["onboard_attitude"]
@@ -95,7 +86,6 @@ def test_hand_moved_bench_log_agrees_with_onboard_attitude(load, estimator):
 @pytest.mark.parametrize("estimator", FULL_STATE)
 def test_sitl_flight_agrees_with_onboard_ekf2(load, estimator):
     """sample_px4_events.ulg: SITL take-off, loiter, return: 1 deg roll/pitch, 3 deg yaw, 1 m position."""
-    _available(estimator)
     log = load("sample_px4_events.ulg")
     result = run_estimators(log, estimators=[estimator])
     states = result.states
@@ -112,7 +102,6 @@ def test_sitl_flight_agrees_with_onboard_ekf2(load, estimator):
 @pytest.mark.parametrize("estimator", FULL_STATE)
 def test_sitl_ground_log_agrees_with_ground_truth(load, estimator):
     """sample_logging_tagged_and_default_params.ulg: SITL on the ground: within 1 deg of the ground truth."""
-    _available(estimator)
     log = load("sample_logging_tagged_and_default_params.ulg")
     states = run_estimators(log, estimators=[estimator]).states
     truth = log["truth_attitude"]
