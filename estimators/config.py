@@ -200,7 +200,11 @@ class TimingConfig:
     still_accel_m_s2 : float
         Stationary when ``| |accel| - g | <`` this [m/s^2] (math note 5.5: 0.2).
     gps_reset_after_s : float
-        GPS continuously rejected this long -> position/velocity reset to GPS (math note 2.3: 5 s).
+        T_rej: a GPS position or velocity component rejected continuously this long -> position and velocity
+        reset to the GPS (math note 2.3: 5 s) [s].
+    gps_outage_reset_s : float
+        T_out: GPS back after an outage longer than this -> position and velocity reset to the GPS (math note
+        2.3: 10 s) [s].
     min_airspeed_m_s : float
         Airspeed samples below this are not fused (on the ground, before launch) [m/s].
     min_ground_speed_m_s : float
@@ -215,6 +219,7 @@ class TimingConfig:
     still_gyro_rad_s: float = 0.05
     still_accel_m_s2: float = 0.2
     gps_reset_after_s: float = 5.0
+    gps_outage_reset_s: float = 10.0
     min_airspeed_m_s: float = 5.0
     min_ground_speed_m_s: float = 3.0
 

@@ -19,7 +19,7 @@ from scipy.spatial.transform import Rotation
 from estimators import eskf_model as m
 from estimators.events import AIRSPEED, BARO, GPS_POS, GPS_VEL, MAG, OUTPUT, SIDESLIP, SUN, ZERO_VELOCITY
 from estimators.full_state_direct import PD_CHECK_EVERY
-from estimators.full_state_direct_numpy import healthy, joseph_update, repair, skew, tangent_basis, wrap
+from estimators.full_state_direct_numpy import GpsMonitor, healthy, joseph_update, repair, skew, tangent_basis, wrap
 from estimators.full_state_indirect import (
     C_DIAG,
     C_FLUSHES,
@@ -203,7 +203,7 @@ def run_reference(imu_t, imu_gyro, imu_accel, ev_t, ev_kind, ev_imu, ev_val, ev_
             x, P = x_safe.copy(), P0.copy()
             counters[C_RESETS] += 1
 
-    last_seen, last_accept = -math.inf, -math.inf
+    gps = GpsMonitor(params[P_GPS_REJECT_S], params[P_GPS_OUTAGE_S])
     n_out, t, j = 0, imu_t[0], 0
     for k in range(len(imu_t)):
         gyro, accel = imu_gyro[k], imu_accel[k]
@@ -236,16 +236,17 @@ def run_reference(imu_t, imu_gyro, imu_accel, ev_t, ev_kind, ev_imu, ev_val, ev_
                 continue
             if acc["dt"] > 0.0:
                 flush()
-            if kind == GPS_POS and (t - last_seen > params[P_GPS_OUTAGE_S] or t - last_accept > params[P_GPS_REJECT_S]):
-                for c in range(3):
-                    x[m.X_P + c] += values[c] - h_and_H(x, kind, c, values, field, lever, gyro)[0]
-                    P[c, :] = 0.0
-                    P[:, c] = 0.0
-                    P[c, c] = ev_var[j, c]
-                counters[C_GPS_RESETS] += last_seen > -math.inf
-                last_seen = last_accept = t
-                j += 1
-                continue
+            if kind in (GPS_POS, GPS_VEL):
+                reset, counted = gps.reset_due(kind, t)
+                if reset:
+                    nominal, error = (P_, DP) if kind == GPS_POS else (V_, DV)
+                    x[nominal] += values[0:3] - [h_and_H(x, kind, c, values, field, lever, gyro)[0] for c in range(3)]
+                    P[error, :] = 0.0
+                    P[:, error] = 0.0
+                    P[error, error] = np.diag(ev_var[j, 0:3])
+                    counters[C_GPS_RESETS] += counted
+                    j += 1
+                    continue
             if kind in (BARO, AIRSPEED, SIDESLIP):
                 comps = [0]
             elif kind == SUN:
@@ -283,6 +284,8 @@ def run_reference(imu_t, imu_gyro, imu_accel, ev_t, ev_kind, ev_imu, ev_val, ev_
                 diag_f[row] = t, nu, s_var, nis
                 diag_i[row] = kind, c, int(accepted)
                 counters[C_DIAG] += 1
+                if kind in (GPS_POS, GPS_VEL):
+                    gps.record(kind, c, t, accepted)
                 if accepted:
                     any_accepted = True
                     dx[sel] += dx_r
@@ -291,10 +294,6 @@ def run_reference(imu_t, imu_gyro, imu_accel, ev_t, ev_kind, ev_imu, ev_val, ev_
                         dx = np.zeros(m.NE)
             if any_accepted and not inject_scalar:
                 x, P = inject(x, dx, P)
-            if kind == GPS_POS:
-                last_seen = t
-                if any_accepted:
-                    last_accept = t
             j += 1
     if acc["dt"] > 0.0:
         flush()

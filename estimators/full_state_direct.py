@@ -92,8 +92,8 @@ P_NG2 = 1  # gyro noise density^2 [(rad/s)^2/Hz]
 P_NA2 = 2  # accel noise density^2 [(m/s^2)^2/Hz]
 P_COV_DT = 3  # covariance propagation interval [s]
 P_FIELD = 4  # 4, 5, 6: unit earth field NED
-P_GPS_REJECT_S = 7  # GPS rejected this long -> reset [s]
-P_GPS_OUTAGE_S = 8  # GPS back after this long -> reset [s]
+P_GPS_REJECT_S = 7  # a GPS component rejected this long -> position/velocity reset [s]
+P_GPS_OUTAGE_S = 8  # GPS back after an outage this long -> position/velocity reset [s]
 P_VMIN = 9  # minimum ground speed for course updates [m/s]
 P_PAPER_VEL = 10  # 1: GPS velocity as ground speed and course
 P_PAPER_INDIRECT = 11  # 1: paper-literal indirect (group error state, reset after the group)
@@ -117,8 +117,6 @@ N_COUNTERS = 9
 
 #: Euler-angle filters stop attitude-dependent updates above this pitch (math note 7.6) [rad].
 PITCH_GUARD_RAD = math.radians(85.0)
-#: GPS back after an outage longer than this -> position reset (math note 2.3) [s].
-GPS_OUTAGE_RESET_S = 10.0
 #: Variance floor of every state (keeps P positive definite).
 MIN_VARIANCE = 1e-12
 #: Smallest eigenvalue kept by a covariance repair.
@@ -589,8 +587,8 @@ def run_kernel(imu_t, imu_gyro, imu_accel, ev_t, ev_kind, ev_imu, ev_val, ev_var
     paper_vel = params[P_PAPER_VEL] > 0.5
     paper_indirect = params[P_PAPER_INDIRECT] > 0.5
     vmin = params[P_VMIN]
-    last_gps_seen = -math.inf
-    last_gps_accept = -math.inf
+    gps_mon = ekf_core.gps_monitor()
+    block3 = np.empty((3, 3))
     n_out = 0
     t = imu_t[0]
     j = 0
@@ -647,21 +645,17 @@ def run_kernel(imu_t, imu_gyro, imu_accel, ev_t, ev_kind, ev_imu, ev_val, ev_var
                 counters[C_PITCH_GUARD] += 1
                 j += 1
                 continue
-            if kind == GPS_POS and (t - last_gps_seen > params[P_GPS_OUTAGE_S]
-                                    or t - last_gps_accept > params[P_GPS_REJECT_S]):
-                # (re)acquisition: position to GPS, variances to R, cross-covariances zeroed (math note 2.3)
-                for c in range(3):
-                    x[c] = values[c]
-                    for i in range(n):
-                        P[c, i] = 0.0
-                        P[i, c] = 0.0
-                    P[c, c] = ev_var[j, c]
-                if last_gps_seen > -math.inf:
-                    counters[C_GPS_RESETS] += 1
-                last_gps_seen = t
-                last_gps_accept = t
-                j += 1
-                continue
+            is_gps = kind in (GPS_POS, GPS_VEL)
+            if is_gps:
+                # (re)acquisition: position and velocity to GPS, variances to R, cross-covariances zeroed (2.3)
+                reset, counted = ekf_core.gps_reset_due(gps_mon, kind == GPS_POS, t, params[P_GPS_REJECT_S],
+                                                        params[P_GPS_OUTAGE_S])
+                if reset:
+                    reset_to_gps(x, P, kind, values, ev_var[j], R, S, W, block3)
+                    if counted:
+                        counters[C_GPS_RESETS] += 1
+                    j += 1
+                    continue
             gate = gates[kind]
             c0, c1 = component_range(kind, values, paper_vel, vmin)
             if kind == SUN:
@@ -674,7 +668,6 @@ def run_kernel(imu_t, imu_gyro, imu_accel, ev_t, ev_kind, ev_imu, ev_val, ev_var
             if paper_indirect:
                 for i in range(n):
                     x_err[i] = 0.0
-            any_accepted = False
             for c in range(c0, c1):
                 if kind == SUN:
                     if not paper_indirect:
@@ -701,8 +694,9 @@ def run_kernel(imu_t, imu_gyro, imu_accel, ev_t, ev_kind, ev_imu, ev_val, ev_var
                 accepted, s_var, nis = ekf_core.scalar_update(P, H, nu, r_var, gate, dx, ph)
                 counters[C_UPDATES] += 1
                 ekf_core.record_update(diag_f, diag_i, counters, t, kind, c, nu, s_var, nis, accepted)
+                if is_gps:
+                    ekf_core.gps_record(gps_mon, kind == GPS_POS, c, t, accepted)
                 if accepted:
-                    any_accepted = True
                     if paper_indirect:
                         for i in range(n):
                             x_err[i] += dx[i]
@@ -716,16 +710,34 @@ def run_kernel(imu_t, imu_gyro, imu_accel, ev_t, ev_kind, ev_imu, ev_val, ev_var
                     x[i] += x_err[i]
                 x[6] = ekf_core.wrap_pi(x[6])
                 x[8] = ekf_core.wrap_pi(x[8])
-            if kind == GPS_POS:
-                last_gps_seen = t
-                if any_accepted:
-                    last_gps_accept = t
             j += 1
     if acc[0] > 0.0:
         _flush_covariance(P, x_cov, acc, g, params, layout, rw_var, min_var, max_var, R, S, W, A, F, Qc, work,
                           active, counters)
     counters[C_OUTPUTS] = n_out
     return x, P
+
+
+@njit(cache=True)
+def reset_to_gps(x, P, kind, values, variances, R, S, W, block):
+    """GPS re-acquisition (math note 2.3): the position (``kind == GPS_POS``) or the body velocity to the GPS
+    value, their covariance to the GPS R (the velocity's rotated into body axes, ``R_nb^T diag(var) R_nb``) and
+    no correlation with the other states. ``block`` (3, 3) scratch."""
+    if kind == GPS_POS:
+        for a in range(3):
+            x[I_P + a] = values[a]
+            for b in range(3):
+                block[a, b] = 0.0
+            block[a, a] = variances[a]
+        ekf_core.reset_covariance_block(P, I_P, block)
+        return
+    euler_matrices(x[6], x[7], x[8], R, S, W)
+    for a in range(3):
+        x[I_V + a] = R[0, a] * values[0] + R[1, a] * values[1] + R[2, a] * values[2]
+        for b in range(3):
+            block[a, b] = (R[0, a] * variances[0] * R[0, b] + R[1, a] * variances[1] * R[1, b]
+                           + R[2, a] * variances[2] * R[2, b])
+    ekf_core.reset_covariance_block(P, I_V, block)
 
 
 @njit(cache=True)
@@ -825,7 +837,7 @@ def kernel_inputs(inputs: ReplayInputs, config: EstimatorConfig, *, mode: str = 
     params[P_COV_DT] = 1.0 / config.timing.covariance_rate_hz
     params[P_FIELD:P_FIELD + 3] = inputs.mag_field_ned
     params[P_GPS_REJECT_S] = config.timing.gps_reset_after_s
-    params[P_GPS_OUTAGE_S] = GPS_OUTAGE_RESET_S
+    params[P_GPS_OUTAGE_S] = config.timing.gps_outage_reset_s
     params[P_VMIN] = config.timing.min_ground_speed_m_s
     params[P_PAPER_VEL] = 1.0 if config.gps_velocity_mode == "paper" else 0.0
     params[P_PAPER_INDIRECT] = 1.0 if mode == "paper_indirect" else 0.0

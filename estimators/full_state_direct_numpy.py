@@ -229,6 +229,57 @@ def tangent_basis(h):
     return np.column_stack([t1, np.cross(u, t1)])
 
 
+class GpsMonitor:
+    """GPS re-acquisition rule of math note 2.3 (the twin of :func:`estimators.ekf_core.gps_reset_due`): a reset
+    of position and velocity when a GPS position or velocity component has been rejected continuously for
+    ``reject_s``, or when GPS returns after an outage longer than ``outage_s``. The kind whose event triggers is
+    reset at once, the other kind at its next event; the first position event resets the position only."""
+
+    def __init__(self, reject_s, outage_s):
+        self.reject_s, self.outage_s = reject_s, outage_s
+        self.seen = {GPS_POS: -math.inf, GPS_VEL: -math.inf}
+        self.pending = {GPS_POS: False, GPS_VEL: False}
+        self.streak_start = {}  # (kind, channel) -> start of its current rejection streak
+
+    def record(self, kind, comp, t, accepted):
+        channel = (kind, comp if kind == GPS_POS or comp < 3 else comp - 3)
+        if accepted:
+            self.streak_start.pop(channel, None)
+        else:
+            self.streak_start.setdefault(channel, t)
+
+    def reset_due(self, kind, t):
+        """(reset this kind's states now, count a new reset event)."""
+        other = GPS_VEL if kind == GPS_POS else GPS_POS
+        last, self.seen[kind] = self.seen[kind], t
+        if kind == GPS_POS and last == -math.inf:
+            return True, False
+        if self.pending[kind]:
+            self.pending[kind] = False
+            return True, False
+        outage = last > -math.inf and t - last > self.outage_s
+        if not (outage or any(t - start >= self.reject_s for start in self.streak_start.values())):
+            return False, False
+        self.streak_start.clear()
+        self.pending[other] = True
+        return True, True
+
+
+def reset_to_gps(x, P, kind, values, variances):
+    """Position, or body velocity ``R^T v_gps``, to the GPS; covariance block to R (rotated), uncorrelated."""
+    x, P = x.copy(), P.copy()
+    if kind == GPS_POS:
+        block, value, cov = slice(0, 3), values[0:3], np.diag(variances[0:3])
+    else:
+        R, _, _ = euler_matrices(x[6:9])
+        block, value, cov = slice(3, 6), R.T @ values[0:3], R.T @ np.diag(variances[0:3]) @ R
+    x[block] = value
+    P[block, :] = 0.0
+    P[:, block] = 0.0
+    P[block, block] = cov
+    return x, P
+
+
 def run_reference(imu_t, imu_gyro, imu_accel, ev_t, ev_kind, ev_imu, ev_val, ev_var, x0, P0, layout, params,
                   gates, rw_var, min_var, max_var, out_f, out_x, out_sx, diag_f, diag_i, counters):
     """Same signature and outputs as :func:`estimators.full_state_direct.run_kernel`."""
@@ -255,7 +306,7 @@ def run_reference(imu_t, imu_gyro, imu_accel, ev_t, ev_kind, ev_imu, ev_val, ev_
             x, P = x_safe.copy(), P0.copy()
             counters[C_RESETS] += 1
 
-    last_seen, last_accept = -math.inf, -math.inf
+    gps = GpsMonitor(params[P_GPS_REJECT_S], params[P_GPS_OUTAGE_S])
     n_out, t, j = 0, imu_t[0], 0
     for k in range(len(imu_t)):
         gyro, accel = imu_gyro[k], imu_accel[k]
@@ -290,16 +341,13 @@ def run_reference(imu_t, imu_gyro, imu_accel, ev_t, ev_kind, ev_imu, ev_val, ev_
                 counters[C_PITCH_GUARD] += 1
                 j += 1
                 continue
-            if kind == GPS_POS and (t - last_seen > params[P_GPS_OUTAGE_S] or t - last_accept > params[P_GPS_REJECT_S]):
-                for c in range(3):
-                    x[c] = values[c]
-                    P[c, :] = 0.0
-                    P[:, c] = 0.0
-                    P[c, c] = ev_var[j, c]
-                counters[C_GPS_RESETS] += last_seen > -math.inf
-                last_seen = last_accept = t
-                j += 1
-                continue
+            if kind in (GPS_POS, GPS_VEL):
+                reset, counted = gps.reset_due(kind, t)
+                if reset:
+                    x, P = reset_to_gps(x, P, kind, values, ev_var[j])
+                    counters[C_GPS_RESETS] += counted
+                    j += 1
+                    continue
             if kind in (BARO, AIRSPEED, SIDESLIP):
                 comps = [0]
             elif kind == SUN:
@@ -311,7 +359,6 @@ def run_reference(imu_t, imu_gyro, imu_accel, ev_t, ev_kind, ev_imu, ev_val, ev_
             x_prior, x_err = x.copy(), np.zeros(len(x))
             if kind == SUN:
                 basis = tangent_basis(np.array([h_and_H(x, kind, c, values, field, layout)[0] for c in range(3)]))
-            any_accepted = False
             for c in comps:
                 x_lin = x_prior if paper_indirect else x
                 if kind == SUN:
@@ -338,8 +385,9 @@ def run_reference(imu_t, imu_gyro, imu_accel, ev_t, ev_kind, ev_imu, ev_val, ev_
                 diag_f[row] = t, nu, s_var, nis
                 diag_i[row] = kind, c, int(accepted)
                 counters[C_DIAG] += 1
+                if kind in (GPS_POS, GPS_VEL):
+                    gps.record(kind, c, t, accepted)
                 if accepted:
-                    any_accepted = True
                     if paper_indirect:
                         x_err = x_err + dx
                     else:
@@ -348,10 +396,6 @@ def run_reference(imu_t, imu_gyro, imu_accel, ev_t, ev_kind, ev_imu, ev_val, ev_
             if paper_indirect:
                 x = x + x_err
                 x[6], x[8] = wrap(x[6]), wrap(x[8])
-            if kind == GPS_POS:
-                last_seen = t
-                if any_accepted:
-                    last_accept = t
             j += 1
     if state["acc_dt"] > 0.0:
         flush()

@@ -60,7 +60,6 @@ from estimators.events import (
 )
 from estimators.full_state_direct import (  # shared with the direct filter: same limits, same event handling
     EIG_FLOOR,
-    GPS_OUTAGE_RESET_S,
     MIN_VARIANCE,
     PD_CHECK_EVERY,
     StateSpec,
@@ -81,8 +80,8 @@ P_NG2 = 1  # gyro noise density^2 [(rad/s)^2/Hz]
 P_NA2 = 2  # accel noise density^2 [(m/s^2)^2/Hz]
 P_COV_DT = 3  # covariance propagation interval [s]
 P_FIELD = 4  # 4, 5, 6: unit earth field NED
-P_GPS_REJECT_S = 7  # GPS rejected this long -> position reset [s]
-P_GPS_OUTAGE_S = 8  # GPS back after this long -> position reset [s]
+P_GPS_REJECT_S = 7  # a GPS component rejected this long -> position/velocity reset [s]
+P_GPS_OUTAGE_S = 8  # GPS back after an outage this long -> position/velocity reset [s]
 P_VMIN = 9  # minimum ground speed for course updates [m/s]
 P_PAPER_VEL = 10  # 1: GPS velocity as ground speed and course
 P_LEVER = 11  # 11, 12, 13: GPS antenna position in body FRD [m]
@@ -234,6 +233,22 @@ def _flush_covariance(P, x_cov, acc, imu_psd, rw_psd, sel, min_var, max_var, mea
 
 
 @njit(cache=True)
+def reset_to_gps(x, P, kind, values, variances, field, lever_b, gyro, H, block):
+    """GPS re-acquisition (math note 2.3): the nominal position (``kind == GPS_POS``) or velocity so that the
+    predicted GPS measurement (lever arm included) equals the GPS value, the error covariance of that block to
+    the GPS R and no correlation with the other error states. The position and velocity error states lead the
+    active states (indices ``E_P``, ``E_V``). ``H`` (NE,) and ``block`` (3, 3) scratch."""
+    first = m.E_P if kind == GPS_POS else m.E_V
+    nominal = m.X_P if kind == GPS_POS else m.X_V
+    for a in range(3):
+        x[nominal + a] += values[a] - measurement(x, kind, a, values, field, lever_b, gyro, H)
+        for b in range(3):
+            block[a, b] = 0.0
+        block[a, a] = variances[a]
+    ekf_core.reset_covariance_block(P, first, block)
+
+
+@njit(cache=True)
 def _healthy(x, P, zero_error):
     """Finite nominal state, and a finite covariance with positive variances (``ekf_core.is_healthy`` on the
     reset error state ``zero_error``)."""
@@ -320,8 +335,8 @@ def run_kernel(imu_t, imu_gyro, imu_accel, ev_t, ev_kind, ev_imu, ev_val, ev_var
     paper_vel = params[P_PAPER_VEL] > 0.5
     inject_scalar = params[P_INJECT_SCALAR] > 0.5
     vmin = params[P_VMIN]
-    last_gps_seen = -math.inf
-    last_gps_accept = -math.inf
+    gps_mon = ekf_core.gps_monitor()
+    block3 = np.empty((3, 3))
     n_out = 0
     t = imu_t[0]
     j = 0
@@ -371,21 +386,17 @@ def run_kernel(imu_t, imu_gyro, imu_accel, ev_t, ev_kind, ev_imu, ev_val, ev_var
             if acc[0] > 0.0:
                 _flush_covariance(P, x_cov, acc, imu_psd, rw_psd, sel, min_var, max_var, mean_input, F_full, Q_full,
                                   F, Q, work, active, counters)
-            if kind == GPS_POS and (t - last_gps_seen > params[P_GPS_OUTAGE_S]
-                                    or t - last_gps_accept > params[P_GPS_REJECT_S]):
-                # (re)acquisition: position to GPS, variances to R, cross-covariances zeroed (math note 2.3)
-                for c in range(3):
-                    x[m.X_P + c] += values[c] - measurement(x, kind, c, values, field, lever, gyro, H_full)
-                    for i in range(n):
-                        P[c, i] = 0.0
-                        P[i, c] = 0.0
-                    P[c, c] = ev_var[j, c]
-                if last_gps_seen > -math.inf:
-                    counters[C_GPS_RESETS] += 1
-                last_gps_seen = t
-                last_gps_accept = t
-                j += 1
-                continue
+            is_gps = kind in (GPS_POS, GPS_VEL)
+            if is_gps:
+                # (re)acquisition: position and velocity to GPS, variances to R, cross-covariances zeroed (2.3)
+                reset, counted = ekf_core.gps_reset_due(gps_mon, kind == GPS_POS, t, params[P_GPS_REJECT_S],
+                                                        params[P_GPS_OUTAGE_S])
+                if reset:
+                    reset_to_gps(x, P, kind, values, ev_var[j], field, lever, gyro, H_full, block3)
+                    if counted:
+                        counters[C_GPS_RESETS] += 1
+                    j += 1
+                    continue
             gate = gates[kind]
             c0, c1 = component_range(kind, values, paper_vel, vmin)
             if kind == SUN:
@@ -420,6 +431,8 @@ def run_kernel(imu_t, imu_gyro, imu_accel, ev_t, ev_kind, ev_imu, ev_val, ev_var
                 accepted, s_var, nis = ekf_core.scalar_update(P, H, nu, r_var, gate, dx_r, ph)
                 counters[C_UPDATES] += 1
                 ekf_core.record_update(diag_f, diag_i, counters, t, kind, c, nu, s_var, nis, accepted)
+                if is_gps:
+                    ekf_core.gps_record(gps_mon, kind == GPS_POS, c, t, accepted)
                 if accepted:
                     any_accepted = True
                     for a in range(n):
@@ -428,10 +441,6 @@ def run_kernel(imu_t, imu_gyro, imu_accel, ev_t, ev_kind, ev_imu, ev_val, ev_var
                         m.inject(x, dx, P)
             if any_accepted and not inject_scalar:
                 m.inject(x, dx, P)
-            if kind == GPS_POS:
-                last_gps_seen = t
-                if any_accepted:
-                    last_gps_accept = t
             j += 1
     if acc[0] > 0.0:
         _flush_covariance(P, x_cov, acc, imu_psd, rw_psd, sel, min_var, max_var, mean_input, F_full, Q_full, F, Q,
@@ -470,7 +479,7 @@ def kernel_inputs(inputs: ReplayInputs, config: EstimatorConfig, flight_log: Fli
     params[P_COV_DT] = 1.0 / config.timing.covariance_rate_hz
     params[P_FIELD:P_FIELD + 3] = inputs.mag_field_ned
     params[P_GPS_REJECT_S] = config.timing.gps_reset_after_s
-    params[P_GPS_OUTAGE_S] = GPS_OUTAGE_RESET_S
+    params[P_GPS_OUTAGE_S] = config.timing.gps_outage_reset_s
     params[P_VMIN] = config.timing.min_ground_speed_m_s
     params[P_PAPER_VEL] = 1.0 if config.gps_velocity_mode == "paper" else 0.0
     params[P_LEVER:P_LEVER + 3] = gps_lever_arm_m(flight_log)

@@ -289,7 +289,8 @@ class KernelParams(NamedTuple):
     vertical_speed_lpf_s: float
     gps_acceleration_lpf_s: float
     min_ground_speed_m_s: float
-    gps_reset_after_s: float
+    gps_reset_after_s: float  # T_rej of math note 2.3 [s]
+    gps_outage_reset_s: float  # T_out of math note 2.3 [s]
 
 
 # ----------------------------------------------------------------------------------------------------------------
@@ -580,8 +581,9 @@ def _stage3_fw_wind(t, va, vd_gps, prm, x2, P2, x3, P3, dx, ph, diag_f, diag_i, 
 
 
 @njit(cache=True)
-def _stage3_gps_velocity(t, values, variances, prm, x3, P3, H, dx, ph, diag_f, diag_i, counters):
-    """GPS horizontal velocity: NED components (linear in multicopter mode), or V_g and chi in paper mode."""
+def _stage3_gps_velocity(t, values, variances, prm, x3, P3, H, dx, ph, gps_mon, diag_f, diag_i, counters):
+    """GPS horizontal velocity: NED components (linear in multicopter mode), or V_g and chi in paper mode
+    (booked in the re-acquisition monitor ``gps_mon`` as velocity channels 0 and 1)."""
     n = x3.shape[0]
     if prm.fixed_wing_nav and prm.paper_gps_velocity:
         speed = math.hypot(values[0], values[1])
@@ -599,6 +601,7 @@ def _stage3_gps_velocity(t, values, variances, prm, x3, P3, H, dx, ph, diag_f, d
                 r_var = 0.5 * (variances[0] + variances[1]) / (speed * speed)  # eq 9 corrected (T5)
             accepted, s_var, nis = ekf_core.scalar_update(P3, H, nu, r_var, prm.gps_vel_gate, dx, ph)
             _record(diag_f, diag_i, counters, t, GPS_VEL, 3 + comp, nu, s_var, nis, accepted)
+            ekf_core.gps_record(gps_mon, False, comp, t, accepted)
             if accepted:
                 x3 += dx
                 x3[3] = ekf_core.wrap_pi(x3[3])
@@ -615,6 +618,7 @@ def _stage3_gps_velocity(t, values, variances, prm, x3, P3, H, dx, ph, diag_f, d
             H[2 + comp] = 1.0
         accepted, s_var, nis = ekf_core.scalar_update(P3, H, nu, variances[comp], prm.gps_vel_gate, dx, ph)
         _record(diag_f, diag_i, counters, t, GPS_VEL, comp, nu, s_var, nis, accepted)
+        ekf_core.gps_record(gps_mon, False, comp, t, accepted)
         if accepted:
             x3 += dx
             if prm.fixed_wing_nav:
@@ -750,8 +754,8 @@ def run_kernel(imu_t, imu_gyro, imu_accel, ev_t, ev_kind, ev_imu, ev_val, ev_var
     gps_vel, gps_vel_t = np.zeros(3), -math.inf
     gps_acc = np.zeros(3)
     gps_pos, gps_pos_var = np.zeros(2), np.zeros(2)
-    gps_pos_t, gps_accept_t = -math.inf, -math.inf
-    gps_reset_epoch = -math.inf
+    gps_pos_t = -math.inf
+    gps_mon = ekf_core.gps_monitor()  # re-acquisition rule (math note 2.3), armed when stage 3 starts
     n_out = 0
     t = imu_t[0]
     ie = 0
@@ -822,17 +826,21 @@ def run_kernel(imu_t, imu_gyro, imu_accel, ev_t, ev_kind, ev_imu, ev_val, ev_var
                 gps_pos[:] = values[:2]
                 gps_pos_var[:] = variances[:2]
                 _flush_stage3(acc3, x3_start, attitude_start, P1, P2, P3, prm, F3, Q3, W3, A3)
-                if stage3_on and t - gps_accept_t > prm.gps_reset_after_s:
-                    # (re)acquisition: position to GPS, variances to R, cross-covariances zeroed (math note 2.3)
+                reset, counted = False, False
+                if stage3_on:
+                    reset, counted = ekf_core.gps_reset_due(gps_mon, True, t, prm.gps_reset_after_s,
+                                                            prm.gps_outage_reset_s)
+                if reset:
+                    # re-acquisition: position (and velocity, at its event) to GPS, variances to R,
+                    # cross-covariances zeroed (math note 2.3)
                     for i in range(2):
                         x3[i] = values[i]
                         for j in range(n3):
                             P3[i, j] = 0.0
                             P3[j, i] = 0.0
                         P3[i, i] = variances[i]
-                    counters[C_GPS_RESETS] += 1
-                    gps_accept_t = t
-                    gps_reset_epoch = t
+                    if counted:
+                        counters[C_GPS_RESETS] += 1
                 elif stage3_on:
                     if prm.fixed_wing_nav and t - va_t < STALE_AFTER_S:
                         _stage3_fw_wind(t, va, gps_vel[2], prm, x2, P2, x3, P3, dx3, ph3, diag_f, diag_i, counters)
@@ -843,9 +851,9 @@ def run_kernel(imu_t, imu_gyro, imu_accel, ev_t, ev_kind, ev_imu, ev_val, ev_var
                         accepted, s_var, nis = ekf_core.scalar_update(P3, H3, nu, variances[i], prm.gps_pos_gate,
                                                                       dx3, ph3)
                         _record(diag_f, diag_i, counters, t, GPS_POS, i, nu, s_var, nis, accepted)
+                        ekf_core.gps_record(gps_mon, True, i, t, accepted)
                         if accepted:
                             x3 += dx3
-                            gps_accept_t = t
                     if prm.fixed_wing_nav:
                         x3[3] = ekf_core.wrap_pi(x3[3])
                     _repair(P3, prm.max_var3, W3, counters)
@@ -870,13 +878,19 @@ def run_kernel(imu_t, imu_gyro, imu_accel, ev_t, ev_kind, ev_imu, ev_val, ev_var
                         x3_safe[:] = x3
                         acc3[:] = 0.0
                         stage3_on = True
-                        gps_accept_t = t
-                elif gps_reset_epoch == t:
-                    _stage3_init_velocity(values, variances, prm, x3, P3)
+                        ekf_core.gps_acquired(gps_mon, t)
                 else:
                     _flush_stage3(acc3, x3_start, attitude_start, P1, P2, P3, prm, F3, Q3, W3, A3)
-                    _stage3_gps_velocity(t, values, variances, prm, x3, P3, H3, dx3, ph3, diag_f, diag_i, counters)
-                    _repair(P3, prm.max_var3, W3, counters)
+                    reset, counted = ekf_core.gps_reset_due(gps_mon, False, t, prm.gps_reset_after_s,
+                                                            prm.gps_outage_reset_s)
+                    if reset:
+                        _stage3_init_velocity(values, variances, prm, x3, P3)
+                        if counted:
+                            counters[C_GPS_RESETS] += 1
+                    else:
+                        _stage3_gps_velocity(t, values, variances, prm, x3, P3, H3, dx3, ph3, gps_mon, diag_f,
+                                             diag_i, counters)
+                        _repair(P3, prm.max_var3, W3, counters)
             ie += 1
         # stage 1 at the accelerometer update rate, with the inputs averaged over the interval
         if t >= next_accel_t and acc_meas[0] > 0.0:
@@ -959,7 +973,8 @@ def kernel_setup(inputs: ReplayInputs, config: EstimatorConfig, options: ThreeSt
         wind_pseudo_var=options.wind_pseudo_sigma_m_s ** 2, airspeed_lpf_s=options.airspeed_lpf_s,
         baro_lpf_s=options.baro_lpf_s, vertical_speed_lpf_s=options.vertical_speed_lpf_s,
         gps_acceleration_lpf_s=options.gps_acceleration_lpf_s,
-        min_ground_speed_m_s=config.timing.min_ground_speed_m_s, gps_reset_after_s=config.timing.gps_reset_after_s)
+        min_ground_speed_m_s=config.timing.min_ground_speed_m_s, gps_reset_after_s=config.timing.gps_reset_after_s,
+        gps_outage_reset_s=config.timing.gps_outage_reset_s)
     modes = {"stage1": ("airspeed (centripetal)" if params.airspeed_model
                         else "gps_acceleration" if params.gps_acceleration else "gravity_only"),
              "stage2": "+".join(s for s, used in (("mag", plan.has_mag), ("sun", plan.has_sun)) if used)

@@ -1,0 +1,204 @@
+"""GPS re-acquisition (math note 2.3) in the three filters: a GPS position component (each one on its own) or a
+velocity component rejected continuously for T_rej, or GPS back after an outage longer than T_out, resets the
+position AND the velocity states to the GPS (variances to R, cross-covariances zeroed) and counts a reset event.
+
+Scenarios on the exact synthetic flight (GPS sigma 0.5 m per axis): a bad start (yaw 61 deg and velocity 4 m/s
+off after a 30 s still phase, the case that left GPS north rejected for the rest of the flight), a GPS north
+step (north alone rejected: the old all-components rule never fired), an outage longer and shorter than T_out;
+the rule itself on hand-made event sequences, kernel against NumPy twin with resets happening."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+
+from estimators import ekf_core, environment, events
+from estimators import full_state_direct as fsd
+from estimators import full_state_indirect as fsi
+from estimators import three_stage as ts
+from estimators.config import EstimatorConfig
+from estimators.events import GPS_POS, GPS_VEL
+from estimators.full_state_direct_numpy import GpsMonitor
+from ingest.flightlog import FlightLog
+from tests.estimators_synthetic import ALT0, LAT0, LON0, synthetic_flight
+
+RUNNERS = {"three_stage": ts.run, "full_state_direct": fsd.run, "full_state_indirect": fsi.run}
+#: Per-axis GPS position sigma of the synthetic flight [m].
+GPS_SIGMA_M = 0.5
+#: "Within a few GPS sigma": the horizontal position RMS bar after recovery [m].
+RECOVERED_RMS_M = 3.0 * GPS_SIGMA_M
+T_REJ_S = EstimatorConfig().timing.gps_reset_after_s
+T_OUT_S = EstimatorConfig().timing.gps_outage_reset_s
+
+
+def _with_gps(log: FlightLog, frame) -> FlightLog:
+    return FlightLog(streams={**log.streams, "gps": frame}, meta=log.meta)
+
+
+def _north_step(log: FlightLog, at_s: float, step_m: float) -> FlightLog:
+    """The GPS north position jumps by ``step_m`` from ``at_s`` seconds after the log start on."""
+    gps = log["gps"].copy()
+    t = gps.index.to_numpy()
+    later = t >= log["imu"].index[0] + at_s
+    gps.loc[later, "lat_deg"] += math.degrees(step_m / 6_378_137.0)
+    return _with_gps(log, gps)
+
+
+def _outage(log: FlightLog, start_s: float, length_s: float) -> FlightLog:
+    gps = log["gps"]
+    t = gps.index.to_numpy() - log["imu"].index[0]
+    return _with_gps(log, gps[(t < start_s) | (t >= start_s + length_s)])
+
+
+def _horizontal_error(log: FlightLog, states, north_offset_m: float = 0.0):
+    """(time since the log start [s], horizontal position error [m]) against the truth (plus an offset)."""
+    t = states["time_s"].to_numpy()
+    north, east, _ = environment.geodetic_to_ned(states["lat_deg"].to_numpy(), states["lon_deg"].to_numpy(),
+                                                 states["alt_m"].to_numpy(), LAT0, LON0, ALT0)
+    truth = log["truth_local_position"]
+    tn = np.interp(t, truth.index.to_numpy(), truth["x_m"].to_numpy()) + north_offset_m
+    te = np.interp(t, truth.index.to_numpy(), truth["y_m"].to_numpy())
+    return t - log["imu"].index[0], np.hypot(north - tn, east - te)
+
+
+def _rms(values) -> float:
+    return float(np.sqrt(np.mean(np.square(values))))
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# the rule
+
+
+def test_rule_on_event_sequences():
+    """First fix: position only; a single rejected channel for T_rej: position now, velocity at its next event,
+    one reset counted; an outage longer than T_out: both, counted; shorter: none. The NumPy twin agrees."""
+    mon = ekf_core.gps_monitor()
+    twin = GpsMonitor(T_REJ_S, T_OUT_S)
+
+    def due(position, t):
+        got = ekf_core.gps_reset_due(mon, position, t, T_REJ_S, T_OUT_S)
+        assert twin.reset_due(GPS_POS if position else GPS_VEL, t) == got
+        return got
+
+    def record(position, comp, t, accepted):
+        ekf_core.gps_record(mon, position, comp, t, accepted)
+        twin.record(GPS_POS if position else GPS_VEL, comp, t, accepted)
+
+    assert due(True, 0.0) == (True, False)  # acquisition: position reset, not counted
+    assert due(False, 0.0) == (False, False)  # the first velocity is fused
+    t = 0.0
+    for k in range(1, 80):  # 10 Hz; north rejected from 1.0 s on, east, down and velocity accepted
+        t = k * 0.1
+        assert due(True, t) == ((True, True) if t >= 1.0 + T_REJ_S - 1e-9 else (False, False)), t
+        if t >= 1.0 + T_REJ_S - 1e-9:
+            break
+        for comp in range(3):
+            record(True, comp, t, accepted=comp != 0 or t < 1.0)
+        assert due(False, t) == (False, False)
+        for comp in range(3):
+            record(False, comp, t, accepted=True)
+    assert due(False, t) == (True, False)  # the velocity half of the same reset
+    assert due(True, t + 0.1) == (False, False)  # streaks cleared
+    # a velocity channel (paper-mode course: component 4) rejected continuously
+    for k in range(2, 80):
+        tk = t + k * 0.1
+        record(False, 4, tk, accepted=False)
+        if due(True, tk + 0.1)[0]:
+            break
+    assert tk + 0.1 - (t + 0.2) >= T_REJ_S - 1e-9
+    assert due(False, tk + 0.1) == (True, False)
+    # outages
+    assert due(True, tk + 0.1 + 0.9 * T_OUT_S) == (False, False)
+    assert due(True, tk + 0.1 + 2.0 * T_OUT_S) == (True, True)
+    assert due(False, tk + 0.1 + 2.0 * T_OUT_S) == (True, False)
+
+
+def test_reset_covariance_block():
+    rng = np.random.default_rng(0)
+    a = rng.normal(size=(6, 6))
+    P = a @ a.T
+    block = np.diag([1.0, 2.0])
+    ekf_core.reset_covariance_block(P, 2, block)
+    np.testing.assert_array_equal(P[2:4, 2:4], block)
+    assert not P[2:4, [0, 1, 4, 5]].any() and not P[[0, 1, 4, 5], 2:4].any()
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# whole runs
+
+
+@pytest.fixture(scope="module")
+def bad_start():
+    """120 s: 30 s still on the ground, then flight; the alignment's yaw 61 deg and velocity 4 m/s off."""
+    log = synthetic_flight(120.0, seed=3, still_s=30.0, turn_rate_deg_s=6.0)
+    config = EstimatorConfig()
+    inputs = events.build_replay_inputs(log, config)
+    align = inputs.alignment
+    wrong = dataclasses.replace(align, yaw_rad=align.yaw_rad + math.radians(61.0),
+                                velocity_ned_m_s=align.velocity_ned_m_s + np.array([4.0, -4.0, 0.0]))
+    return log, config, dataclasses.replace(inputs, alignment=wrong)
+
+
+@pytest.mark.parametrize("name", RUNNERS)
+def test_recovers_from_a_large_yaw_and_velocity_error(bad_start, name):
+    log, config, inputs = bad_start
+    run = RUNNERS[name](log, inputs, config)
+    t, err = _horizontal_error(log, run.states)
+    recovered = _rms(err[t >= 90.0])
+    print(f"{name}: {run.report.gps_resets} GPS resets, position RMS after 90 s {recovered:.2f} m, "
+          f"max {np.nanmax(err):.1f} m")
+    assert recovered < RECOVERED_RMS_M
+    if name != "three_stage":  # its navigation stage starts at the first GPS epoch in flight, velocity from GPS
+        assert run.report.gps_resets >= 1
+
+
+@pytest.mark.parametrize("name", RUNNERS)
+def test_one_rejected_component_resets_position_and_velocity(name):
+    """GPS north jumps 30 m at 40 s (east stays right): north alone is rejected, one reset T_rej later, then the
+    estimate follows the GPS again."""
+    step_at, step = 40.0, 30.0
+    log = _north_step(synthetic_flight(70.0, seed=5, turn_rate_deg_s=6.0), step_at, step)
+    config = EstimatorConfig()
+    run = RUNNERS[name](log, events.build_replay_inputs(log, config), config)
+    assert run.report.gps_resets == 1
+    t, err = _horizontal_error(log, run.states, north_offset_m=step)
+    after = t >= step_at + T_REJ_S + 2.0
+    print(f"{name}: position RMS against the stepped GPS {_rms(err[after]):.2f} m")
+    assert _rms(err[after]) < RECOVERED_RMS_M
+    diag = run.diagnostics
+    north = diag[(diag["sensor"] == "gps_pos") & (diag["component"] == "n")]
+    late = north["time_s"].to_numpy() - log["imu"].index[0] > step_at + T_REJ_S + 1.0
+    assert north["accepted"][late].mean() > 0.95
+
+
+@pytest.mark.parametrize("name", RUNNERS)
+def test_outage_longer_than_t_out_resets_at_the_return(name):
+    log = synthetic_flight(60.0, seed=6, turn_rate_deg_s=6.0)
+    config = EstimatorConfig()
+    short = _outage(log, 25.0, 0.8 * T_OUT_S)
+    long = _outage(log, 25.0, 1.5 * T_OUT_S)
+    assert RUNNERS[name](short, events.build_replay_inputs(short, config), config).report.gps_resets == 0
+    run = RUNNERS[name](long, events.build_replay_inputs(long, config), config)
+    assert run.report.gps_resets == 1
+    t, err = _horizontal_error(long, run.states)
+    assert _rms(err[t >= 25.0 + 1.5 * T_OUT_S + 1.0]) < RECOVERED_RMS_M
+
+
+@pytest.mark.parametrize("estimator", ["full_state_direct", "full_state_indirect"])
+def test_numba_kernel_equals_numpy_twin_through_resets(estimator):
+    """10 s with the GPS north stepping 20 m at 2 s: the reset (at about 7 s) is the same in the kernel and the
+    NumPy twin."""
+    log = _north_step(synthetic_flight(10.0, seed=3), 2.0, 20.0)
+    config = EstimatorConfig()
+    inputs = events.build_replay_inputs(log, config)
+    fast = RUNNERS[estimator](log, inputs, config, backend="numba")
+    slow = RUNNERS[estimator](log, inputs, config, backend="numpy")
+    assert fast.report.gps_resets == slow.report.gps_resets == 1
+    numeric = [c for c in fast.states.columns if c != "time_s"]
+    a, b = fast.states[numeric].to_numpy(), slow.states[numeric].to_numpy()
+    assert np.array_equal(np.isnan(a), np.isnan(b))
+    assert np.nanmax(np.abs(a - b)) < 1e-9
+    assert (fast.diagnostics["accepted"].to_numpy() == slow.diagnostics["accepted"].to_numpy()).all()
