@@ -69,6 +69,7 @@ from estimators.events import (
     ReplayInputs,
 )
 from estimators.results import EstimatorReport, EstimatorRun, diagnostics_frame, states_frame
+from estimators.state_table import StateSpec, initial_covariance, random_walk_psd
 from ingest.flightlog import FlightLog
 from ingest.frames import euler_to_matrix
 
@@ -124,26 +125,6 @@ EIG_FLOOR = 1e-12
 #: The full positive-definiteness test (Cholesky) runs every this many covariance propagations; the variance
 #: limits every time.
 PD_CHECK_EVERY = 10
-
-
-@dataclass(frozen=True)
-class StateSpec:
-    """One row of the state table.
-
-    Attributes
-    ----------
-    name : str
-    unit : str
-    initial_sigma : float
-        Initial 1-sigma, in ``unit``.
-    process_sigma : float
-        Random-walk density [unit/sqrt(s)] (0: the state's noise enters through the IMU inputs).
-    """
-
-    name: str
-    unit: str
-    initial_sigma: float
-    process_sigma: float
 
 
 def state_table(config: EstimatorConfig, *, accel_bias: bool, wind: bool, mag_bias: bool, baro_bias: bool,
@@ -827,9 +808,8 @@ def kernel_inputs(inputs: ReplayInputs, config: EstimatorConfig, *, mode: str = 
     x0[I_V:I_V + 3] = r_nb.T @ align.velocity_ned_m_s
     x0[I_TH:I_TH + 3] = align.roll_rad, align.pitch_rad, align.yaw_rad
     x0[I_BG:I_BG + 3] = align.gyro_bias_rad_s
-    sigma0 = np.array([s.initial_sigma for s in table])
-    P0 = np.diag(sigma0 ** 2)
-    rw_var = np.array([s.process_sigma ** 2 for s in table])
+    P0 = initial_covariance(table)
+    rw_var = random_walk_psd(table)
     params = np.zeros(N_PARAMS)
     params[P_G] = inputs.gravity_m_s2
     params[P_NG2] = config.noise.gyro_noise_rad_s_sqrt_hz ** 2

@@ -62,13 +62,13 @@ from estimators.full_state_direct import (  # shared with the direct filter: sam
     EIG_FLOOR,
     MIN_VARIANCE,
     PD_CHECK_EVERY,
-    StateSpec,
     _tangent_basis,
     component_range,
     diagnostics_capacity,
     measured_value,
 )
 from estimators.results import EstimatorReport, EstimatorRun, diagnostics_frame, states_frame
+from estimators.state_table import StateSpec, initial_sigmas, random_walk_psd
 from ingest.flightlog import FlightLog
 from ingest.frames import euler_to_quat, quat_to_euler
 
@@ -467,7 +467,7 @@ def kernel_inputs(inputs: ReplayInputs, config: EstimatorConfig, flight_log: Fli
     x0[m.X_V:m.X_V + 3] = align.velocity_ned_m_s
     x0[m.X_Q:m.X_Q + 4] = euler_to_quat(align.roll_rad, align.pitch_rad, align.yaw_rad)
     x0[m.X_BG:m.X_BG + 3] = align.gyro_bias_rad_s
-    sigma0 = np.array([s.initial_sigma for s in full_table])
+    sigma0 = initial_sigmas(full_table)
     P0_full = np.diag(sigma0 ** 2)
     _, W = attitude_matrices(align.roll_rad, align.pitch_rad)
     th = slice(m.E_TH, m.E_TH + 3)
@@ -493,7 +493,7 @@ def kernel_inputs(inputs: ReplayInputs, config: EstimatorConfig, flight_log: Fli
     max_var[(sel >= m.E_TH) & (sel < m.E_TH + 3)] = MAX_ATTITUDE_VAR_RAD2
     return {"table": tuple(full_table[i] for i in sel), "x0": x0, "P0": np.ascontiguousarray(P0_full[np.ix_(sel, sel)]),
             "sel": sel, "params": params, "gates": gates,
-            "rw_psd": np.array([s.process_sigma ** 2 for s in full_table]),
+            "rw_psd": random_walk_psd(full_table),
             "min_var": np.full(n, MIN_VARIANCE), "max_var": max_var}
 
 

@@ -61,15 +61,13 @@ from estimators import ekf_core, events
 from estimators.config import EstimatorConfig
 from estimators.events import AIRSPEED, BARO, GPS_POS, GPS_VEL, MAG, OUTPUT, SUN, ReplayInputs
 from estimators.results import EstimatorReport, EstimatorRun, states_frame
+from estimators.state_table import StateSpec, initial_covariance, process_noise_psd
 from estimators.sun_vector import sun_tangent_basis
 from estimators.three_stage_models import (
     I_DEVIATION,
-    StateSpec,
     corrected_heading,
     euler_yaw_rate,
-    initial_covariance,
     ned_acceleration,
-    process_noise_psd,
     stage1_A,
     stage1_C_airspeed,
     stage1_G,

@@ -6,9 +6,9 @@ Analytic Jacobians only; ``tests/test_three_stage.py`` checks each against centr
 
 Frames and units: NED earth frame, FRD body frame, ZYX Euler angles (roll phi, pitch theta, yaw psi) [rad], body
 rates (p, q, r) [rad/s], specific force [m/s^2] (``(0, 0, -g)`` level at rest), speeds [m/s], positions [m].
-Each stage's state is laid out in a table of :class:`StateSpec` rows (built from the configuration in
-:mod:`estimators.three_stage`); :func:`initial_covariance` and :func:`process_noise_psd` build P0 and the continuous
-process-noise density from it.
+Each stage's state is laid out in a table of :class:`~estimators.state_table.StateSpec` rows (built from the
+configuration in :mod:`estimators.three_stage`); :func:`~estimators.state_table.initial_covariance` and
+:func:`~estimators.state_table.process_noise_psd` build P0 and the continuous process-noise density from it.
 
 Stages
 ------
@@ -26,44 +26,11 @@ Stages
 
 from __future__ import annotations
 
-from typing import NamedTuple
-
 import numpy as np
 from numba import njit
 
 #: Ground speed below which the course is undefined and the 1/V_g terms are frozen [m/s] (math note 3.3, 7.5).
 MIN_GROUND_SPEED_M_S = 3.0
-
-
-class StateSpec(NamedTuple):
-    """One row of a stage's state table.
-
-    Attributes
-    ----------
-    name : str
-        State name with its unit suffix.
-    unit : str
-        Unit of the state.
-    sigma0 : float
-        Initial standard deviation [unit].
-    sigma_process : float
-        Random-walk process-noise density [unit / sqrt(s)] (model error beyond the input noise).
-    """
-
-    name: str
-    unit: str
-    sigma0: float
-    sigma_process: float
-
-
-def initial_covariance(table: tuple[StateSpec, ...]) -> np.ndarray:
-    """P0 = diag(sigma0^2) of a state table, shape (n, n)."""
-    return np.diag([spec.sigma0 ** 2 for spec in table])
-
-
-def process_noise_psd(table: tuple[StateSpec, ...]) -> np.ndarray:
-    """Continuous process-noise density Qc = diag(sigma_process^2) [unit^2 / s], shape (n, n); Q_d += Qc dt."""
-    return np.diag([spec.sigma_process ** 2 for spec in table])
 
 
 # --------------------------------------------------------------------------------------------------------------

@@ -14,7 +14,7 @@ import pandas as pd
 import pytest
 from estimators_synthetic import synthetic_flight
 
-from estimators import events, three_stage
+from estimators import events, state_table, three_stage
 from estimators import three_stage_models as m
 from estimators.api import run_estimators
 from estimators.config import EstimatorConfig
@@ -301,8 +301,8 @@ def all_tables():
 
 @pytest.mark.parametrize("table", all_tables())
 def test_state_tables_build_positive_definite_matrices(table):
-    p0 = m.initial_covariance(table)
-    qc = m.process_noise_psd(table)
+    p0 = state_table.initial_covariance(table)
+    qc = state_table.process_noise_psd(table)
     assert p0.shape == qc.shape == (len(table), len(table))
     assert np.all(np.linalg.eigvalsh(p0) > 0) and np.all(np.linalg.eigvalsh(qc) > 0)
     names = [spec.name for spec in table]
