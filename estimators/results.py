@@ -26,6 +26,14 @@ STD_COLUMNS = ("roll_deg_std", "pitch_deg_std", "yaw_deg_std", "pos_n_m_std", "p
 #: Columns of the diagnostics table, in order.
 DIAGNOSTIC_COLUMNS = ("estimator", "time_s", "sensor", "component", "innovation", "innovation_var", "nis",
                       "accepted")
+#: Diagnostics sensor codes beyond the measurement event kinds of :mod:`estimators.events`: the three-stage
+#: filter's stage-1 accelerometer update and its wind-triangle pseudo-measurement.
+ACCEL = len(SENSOR_NAMES)
+WIND = ACCEL + 1
+#: Sensor name per diagnostics code (the ``sensor`` column): the event kinds, then ``accel`` and ``wind``.
+DIAGNOSTIC_SENSOR_NAMES = (*SENSOR_NAMES, "accel", "wind")
+#: Component names per diagnostics code (the ``component`` column), indexed by the kernels' component id.
+DIAGNOSTIC_COMPONENT_NAMES = (*COMPONENT_NAMES, ("x", "y", "z"), ("n", "e"))
 
 
 @dataclass(frozen=True)
@@ -158,14 +166,14 @@ def states_frame(time_s, roll_rad, pitch_rad, yaw_rad, position_ned_m, velocity_
 def diagnostics_frame(diag_f: np.ndarray, diag_i: np.ndarray, count: int) -> pd.DataFrame:
     """The diagnostics table from the kernels' recorder arrays (see :mod:`estimators.ekf_core`).
 
-    ``sensor`` and ``component`` become categorical names (:data:`estimators.events.SENSOR_NAMES`,
-    :data:`estimators.events.COMPONENT_NAMES`), ``accepted`` a bool.
+    ``sensor`` and ``component`` become categorical names (:data:`DIAGNOSTIC_SENSOR_NAMES`,
+    :data:`DIAGNOSTIC_COMPONENT_NAMES`; the same categories for every estimator), ``accepted`` a bool.
     """
     diag_f, diag_i = diag_f[:count], diag_i[:count]
     sensor_codes = diag_i[:, 0]
     return pd.DataFrame({
         "time_s": diag_f[:, 0],
-        "sensor": pd.Categorical.from_codes(sensor_codes, categories=SENSOR_NAMES),
+        "sensor": pd.Categorical.from_codes(sensor_codes, categories=DIAGNOSTIC_SENSOR_NAMES),
         "component": pd.Categorical.from_codes(_COMPONENT_CODES[sensor_codes, diag_i[:, 1]],
                                                categories=COMPONENT_CATEGORIES),
         "innovation": diag_f[:, 1],
@@ -176,6 +184,7 @@ def diagnostics_frame(diag_f: np.ndarray, diag_i: np.ndarray, count: int) -> pd.
 
 
 #: Every component name, the categories of the diagnostics' ``component`` column.
-COMPONENT_CATEGORIES = tuple(dict.fromkeys(name for names in COMPONENT_NAMES for name in names))
+COMPONENT_CATEGORIES = tuple(dict.fromkeys(name for names in DIAGNOSTIC_COMPONENT_NAMES for name in names))
 _COMPONENT_CODES = np.array([[COMPONENT_CATEGORIES.index(names[c]) if c < len(names) else -1
-                              for c in range(max(len(n) for n in COMPONENT_NAMES))] for names in COMPONENT_NAMES])
+                              for c in range(max(len(n) for n in DIAGNOSTIC_COMPONENT_NAMES))]
+                             for names in DIAGNOSTIC_COMPONENT_NAMES])

@@ -53,14 +53,13 @@ from dataclasses import dataclass, field
 from typing import NamedTuple
 
 import numpy as np
-import pandas as pd
 from numba import njit
 from scipy.stats import chi2
 
 from estimators import ekf_core, events
 from estimators.config import EstimatorConfig
 from estimators.events import AIRSPEED, BARO, GPS_POS, GPS_VEL, MAG, OUTPUT, SUN, ReplayInputs
-from estimators.results import EstimatorReport, EstimatorRun, states_frame
+from estimators.results import ACCEL, WIND, EstimatorReport, EstimatorRun, diagnostics_frame, states_frame
 from estimators.state_table import StateSpec, initial_covariance, process_noise_psd
 from estimators.sun_vector import sun_tangent_basis
 from estimators.three_stage_models import (
@@ -88,12 +87,6 @@ from estimators.three_stage_models import (
 from ingest.flightlog import FlightLog
 
 NAME = "three_stage"
-
-#: Diagnostics sensor codes beyond the shared event kinds: stage-1 accelerometer and the wind-triangle pseudo.
-ACCEL = events.OUTPUT + 1
-WIND = events.OUTPUT + 2
-SENSOR_NAMES = (*events.SENSOR_NAMES, "accel", "wind")
-COMPONENT_NAMES = (*events.COMPONENT_NAMES, ("x", "y", "z"), ("n", "e"))
 
 #: Event kinds the replay inputs may carry that this estimator does not use (fixed-wing sideslip and no-GPS
 #: zero-velocity pseudo-measurements of the full-state filters).
@@ -1001,23 +994,6 @@ def diagnostics_capacity(ev: events.MeasurementEvents, imu_duration_s: float, op
     per_kind[SUN] = 2
     n_accel = 3 * (int(imu_duration_s * options.accel_update_rate_hz) + 2)
     return int(per_kind[ev.kind].sum()) + n_accel
-
-
-def diagnostics_frame(diag_f: np.ndarray, diag_i: np.ndarray, count: int) -> pd.DataFrame:
-    """The diagnostics table (as :func:`estimators.results.diagnostics_frame`, with the ``accel`` and ``wind``
-    sensors of this estimator)."""
-    diag_f, diag_i = diag_f[:count], diag_i[:count]
-    width = max(len(c) for c in COMPONENT_NAMES)
-    table = np.array([tuple(c) + ("",) * (width - len(c)) for c in COMPONENT_NAMES], dtype=object)
-    return pd.DataFrame({
-        "time_s": diag_f[:, 0],
-        "sensor": pd.Categorical(np.asarray(SENSOR_NAMES, dtype=object)[diag_i[:, 0]], categories=SENSOR_NAMES),
-        "component": pd.Categorical(table[diag_i[:, 0], diag_i[:, 1]]),
-        "innovation": diag_f[:, 1],
-        "innovation_var": diag_f[:, 2],
-        "nis": diag_f[:, 3],
-        "accepted": diag_i[:, 2].astype(bool),
-    })
 
 
 def run(flight_log: FlightLog, inputs: ReplayInputs, config: EstimatorConfig, *,

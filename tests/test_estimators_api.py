@@ -12,7 +12,7 @@ import pytest
 from app.cli import main
 from estimators.api import ESTIMATORS, parse_estimator_names, run_estimators
 from estimators.config import EstimatorConfig, config_from_calibration
-from estimators.results import DIAGNOSTIC_COLUMNS, STATE_COLUMNS, STD_COLUMNS
+from estimators.results import DIAGNOSTIC_COLUMNS, DIAGNOSTIC_SENSOR_NAMES, STATE_COLUMNS, STD_COLUMNS
 from ingest.errors import InputError
 from tests.estimators_synthetic import synthetic_flight
 
@@ -39,6 +39,21 @@ def test_tables_follow_the_contract(flight):
     report = result.reports["full_state_direct"]
     assert {"prepare", "kernel", "total"} <= set(report.timings_s)
     assert report.used == ("baro", "airspeed", "sideslip", "gps_pos", "gps_vel", "mag")
+
+
+def test_diagnostics_share_one_vocabulary(flight):
+    """Every estimator names its sensors and components from one table (the three-stage's stage-1 ``accel`` and
+    wind-triangle ``wind`` included), so the diagnostics of a multi-estimator run stay categorical."""
+    result = run_estimators(flight)
+    diagnostics = result.diagnostics
+    for column in ("sensor", "component"):
+        assert isinstance(diagnostics[column].dtype, pd.CategoricalDtype), column
+    assert tuple(diagnostics["sensor"].cat.categories) == DIAGNOSTIC_SENSOR_NAMES
+    three_stage = diagnostics[diagnostics["estimator"] == "three_stage"]
+    assert {"accel", "wind"} <= set(three_stage["sensor"].astype(str))
+    accel = three_stage[three_stage["sensor"] == "accel"]
+    assert set(accel["component"].astype(str)) == {"x", "y", "z"}
+    assert diagnostics["component"].notna().all()
 
 
 def test_registry_and_selection(flight):
