@@ -70,6 +70,7 @@ from estimators.events import (
 )
 from estimators.results import EstimatorReport, EstimatorRun, diagnostics_frame, states_frame
 from estimators.state_table import StateSpec, initial_covariance, random_walk_psd
+from estimators.sun_vector import sun_tangent_basis
 from ingest.flightlog import FlightLog
 from ingest.frames import euler_to_matrix
 
@@ -645,7 +646,7 @@ def run_kernel(imu_t, imu_gyro, imu_accel, ev_t, ev_kind, ev_imu, ev_val, ev_var
                     h3[c] = measurement(x, kind, c, values, field, layout, R, S, W, H)
                     for i in range(n):
                         H3[c, i] = H[i]
-                basis = _tangent_basis(h3)
+                basis = sun_tangent_basis(h3)
             if paper_indirect:
                 for i in range(n):
                     x_err[i] = 0.0
@@ -719,27 +720,6 @@ def reset_to_gps(x, P, kind, values, variances, R, S, W, block):
             block[a, b] = (R[0, a] * variances[0] * R[0, b] + R[1, a] * variances[1] * R[1, b]
                            + R[2, a] * variances[2] * R[2, b])
     ekf_core.reset_covariance_block(P, I_V, block)
-
-
-@njit(cache=True)
-def _tangent_basis(h):
-    """(3, 2) orthonormal basis of the plane perpendicular to ``h`` (math note 8.5)."""
-    norm = math.sqrt(h[0] * h[0] + h[1] * h[1] + h[2] * h[2])
-    u0, u1, u2 = h[0] / norm, h[1] / norm, h[2] / norm
-    if abs(u0) < 0.9:
-        a0, a1, a2 = 1.0, 0.0, 0.0
-    else:
-        a0, a1, a2 = 0.0, 1.0, 0.0
-    d = a0 * u0 + a1 * u1 + a2 * u2
-    t0, t1, t2 = a0 - d * u0, a1 - d * u1, a2 - d * u2
-    tn = math.sqrt(t0 * t0 + t1 * t1 + t2 * t2)
-    t0, t1, t2 = t0 / tn, t1 / tn, t2 / tn
-    basis = np.empty((3, 2))
-    basis[0, 0], basis[1, 0], basis[2, 0] = t0, t1, t2
-    basis[0, 1] = u1 * t2 - u2 * t1
-    basis[1, 1] = u2 * t0 - u0 * t2
-    basis[2, 1] = u0 * t1 - u1 * t0
-    return basis
 
 
 @njit(cache=True)

@@ -62,13 +62,13 @@ from estimators.full_state_direct import (  # shared with the direct filter: sam
     EIG_FLOOR,
     MIN_VARIANCE,
     PD_CHECK_EVERY,
-    _tangent_basis,
     component_range,
     diagnostics_capacity,
     measured_value,
 )
 from estimators.results import EstimatorReport, EstimatorRun, diagnostics_frame, states_frame
 from estimators.state_table import StateSpec, initial_sigmas, random_walk_psd
+from estimators.sun_vector import sun_tangent_basis
 from ingest.flightlog import FlightLog
 from ingest.frames import euler_to_quat, quat_to_euler
 
@@ -403,7 +403,7 @@ def run_kernel(imu_t, imu_gyro, imu_accel, ev_t, ev_kind, ev_imu, ev_val, ev_var
                 for c in range(3):
                     h3[c] = measurement(x, kind, c, values, field, lever, gyro, H_full)
                     H3[c, :] = H_full
-                basis = _tangent_basis(h3)
+                basis = sun_tangent_basis(h3)
             any_accepted = False
             for c in range(c0, c1):
                 if kind == SUN:

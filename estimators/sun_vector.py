@@ -1115,18 +1115,27 @@ def sun_jacobian_error_angle(r_nb, s_ned):
 
 @njit(cache=True)
 def sun_tangent_basis(h):
-    """Orthonormal basis of the plane perpendicular to the unit vector ``h``, shape (3, 2).
+    """Orthonormal basis of the plane perpendicular to ``h`` (normalised first), shape (3, 2), columns
+    ``(t1, u x t1)`` with ``u = h / |h|``; the one tangent basis of the three filters' sun updates.
 
     For the 2-DOF form of the update (note 8.5): ``nu = T^T z``, ``H' = T^T H``, ``R' = sigma_rad^2 I_2``.
     """
-    helper = np.array([1.0, 0.0, 0.0]) if abs(h[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
-    t1 = helper - (helper @ h) * h
-    t1 /= np.sqrt(t1 @ t1)
-    t2 = np.array([h[1] * t1[2] - h[2] * t1[1], h[2] * t1[0] - h[0] * t1[2], h[0] * t1[1] - h[1] * t1[0]])
-    out = np.empty((3, 2))
-    out[:, 0] = t1
-    out[:, 1] = t2
-    return out
+    norm = np.sqrt(h[0] * h[0] + h[1] * h[1] + h[2] * h[2])
+    u0, u1, u2 = h[0] / norm, h[1] / norm, h[2] / norm
+    if abs(u0) < 0.9:
+        a0, a1, a2 = 1.0, 0.0, 0.0
+    else:
+        a0, a1, a2 = 0.0, 1.0, 0.0
+    d = a0 * u0 + a1 * u1 + a2 * u2
+    t0, t1, t2 = a0 - d * u0, a1 - d * u1, a2 - d * u2
+    tn = np.sqrt(t0 * t0 + t1 * t1 + t2 * t2)
+    t0, t1, t2 = t0 / tn, t1 / tn, t2 / tn
+    basis = np.empty((3, 2))
+    basis[0, 0], basis[1, 0], basis[2, 0] = t0, t1, t2
+    basis[0, 1] = u1 * t2 - u2 * t1
+    basis[1, 1] = u2 * t0 - u0 * t2
+    basis[2, 1] = u0 * t1 - u1 * t0
+    return basis
 
 
 @njit(cache=True)
