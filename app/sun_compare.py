@@ -11,7 +11,7 @@ import numpy as np
 import pandas as pd
 
 from app.comparison import reference_states
-from estimators.environment import sun_direction_ned
+from estimators.sun_prediction import sun_ned_at
 from ingest import FlightLog, SunDevice
 from ingest.frames import euler_to_matrix
 from ingest.sun_device import N_CELLS
@@ -19,8 +19,6 @@ from ingest.sun_device import N_CELLS
 #: Cell state codes of :func:`cell_states`.
 CELL_DARK, CELL_LIT, CELL_FAULTY = 0, 1, 2
 CELL_STATE_NAMES = ("dark / unused", "lit (used)", "faulty (excluded)")
-#: The ephemeris is evaluated on this grid [s] and interpolated (the sun moves < 0.005 deg/s).
-EPHEMERIS_STEP_S = 1.0
 
 
 def body_angles_deg(sun_body: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -43,10 +41,7 @@ def predicted_sun_body(log: FlightLog, attitude_source: str, time_s: np.ndarray,
     frame by the attitude of ``attitude_source`` (``"truth"`` or ``"onboard"``), shape (n, 3), NaN outside the
     attitude stream. Needs the log's UTC time (:attr:`FlightLog.meta.utc_offset_s`)."""
     time_s = np.asarray(time_s, dtype=float)
-    grid = np.arange(np.floor(time_s[0]), np.ceil(time_s[-1]) + EPHEMERIS_STEP_S, EPHEMERIS_STEP_S)
-    s_grid, _ = sun_direction_ned(log.utc(grid), *origin)
-    s_ned = np.column_stack([np.interp(time_s, grid, s_grid[:, i]) for i in range(3)])
-    s_ned /= np.linalg.norm(s_ned, axis=1, keepdims=True)
+    s_ned, _ = sun_ned_at(log, time_s, origin=origin)
     attitude = reference_states(log, attitude_source, time_s)
     r_nb = euler_to_matrix(*(np.radians(attitude[c].to_numpy(float)) for c in ("roll_deg", "pitch_deg", "yaw_deg")))
     return np.einsum("nji,nj->ni", r_nb, s_ned)  # R_nb^T s_ned

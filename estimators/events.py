@@ -676,11 +676,12 @@ def _decimal_year(flight_log: FlightLog) -> float | None:
 
 def sun_observations_from_log(flight_log: FlightLog, origin: Origin, warnings: list[str]) -> pd.DataFrame | None:
     """Sun-vector observations from the log's photocell currents (:func:`estimators.sun_vector.solve_sun_log`)
-    and the sun's NED direction at the origin (NREL SPA, :func:`estimators.environment.sun_direction_ned`).
+    and the sun's NED direction at the origin (NREL SPA on a 1 Hz grid, :func:`estimators.sun_prediction.sun_ned_at`).
 
     Returns None when the log has no GPS position or no UTC time (the ephemeris needs both). Epochs without a
     solution or with the sun below :data:`estimators.environment.MIN_SUN_ELEVATION_DEG` are dropped.
     """
+    from estimators.sun_prediction import sun_ned_at
     from estimators.sun_vector import solve_sun_log
 
     if origin.source != "gps" or flight_log.meta.utc_offset_s is None:
@@ -692,13 +693,7 @@ def sun_observations_from_log(flight_log: FlightLog, origin: Origin, warnings: l
         warnings.append("sun heading: no epoch with a valid sun-vector solution")
         return None
     time_s = solved["time_s"].to_numpy(dtype=float)
-    # the sun moves < 0.005 deg/s: evaluate the ephemeris at 1 Hz and interpolate (math note 8.1)
-    grid = np.arange(math.floor(time_s[0]), math.ceil(time_s[-1]) + 1.0)
-    s_grid, elevation_grid = environment.sun_direction_ned(flight_log.utc(grid), origin.lat_deg, origin.lon_deg,
-                                                           origin.alt_m)
-    s_ned = np.column_stack([np.interp(time_s, grid, s_grid[:, i]) for i in range(3)])
-    s_ned /= np.linalg.norm(s_ned, axis=1, keepdims=True)
-    elevation = np.interp(time_s, grid, elevation_grid)
+    s_ned, elevation = sun_ned_at(flight_log, time_s, origin=(origin.lat_deg, origin.lon_deg, origin.alt_m))
     keep = elevation > environment.MIN_SUN_ELEVATION_DEG
     if not keep.any():
         warnings.append("sun heading: the sun is below the horizon limit during the whole log")

@@ -81,18 +81,23 @@ def attitude_matrices_at(flight_log: FlightLog, source: str, time_s) -> np.ndarr
     return quat_to_matrix(q_at)
 
 
-def sun_ned_at(flight_log: FlightLog, time_s) -> tuple[np.ndarray, np.ndarray]:
-    """Unit vector towards the sun in NED and its apparent elevation at the vehicle's GPS position.
+def sun_ned_at(flight_log: FlightLog, time_s, origin=None) -> tuple[np.ndarray, np.ndarray]:
+    """Unit vector towards the sun in NED and its apparent elevation, at the vehicle's GPS position or at a fixed
+    observer position.
 
     The NREL SPA ephemeris (:func:`estimators.environment.sun_direction_ned`) is evaluated every
-    :data:`EPHEMERIS_STEP_S` at the interpolated GPS position and interpolated to ``time_s``.
+    :data:`EPHEMERIS_STEP_S` (the sun moves < 0.005 deg/s, math note 8.1) and interpolated to ``time_s``; the
+    one place the replay, ``solarnav sun`` and the app evaluate it.
 
     Parameters
     ----------
     flight_log : FlightLog
-        Needs UTC time (``meta.utc_offset_s``) and a ``gps`` stream with 3D fixes.
+        Needs UTC time (``meta.utc_offset_s``) and, without ``origin``, a ``gps`` stream with 3D fixes.
     time_s : array-like, shape (n,)
         Log-clock times [s].
+    origin : tuple of (float, float, float), optional
+        Fixed observer ``(lat_deg, lon_deg, alt_m)`` (e.g. the replay's NED origin); default: the GPS position
+        interpolated to the ephemeris grid.
 
     Returns
     -------
@@ -103,18 +108,23 @@ def sun_ned_at(flight_log: FlightLog, time_s) -> tuple[np.ndarray, np.ndarray]:
     """
     time_s = np.asarray(time_s, dtype=float)
     nan = np.full((len(time_s), 3), np.nan), np.full(len(time_s), np.nan)
-    if flight_log.meta.utc_offset_s is None or not flight_log.has("gps") or len(time_s) == 0:
+    if flight_log.meta.utc_offset_s is None or len(time_s) == 0 or not np.isfinite(time_s).any():
         return nan
-    gps = flight_log["gps"]
-    good = np.isfinite(gps[["lat_deg", "lon_deg", "alt_m"]].to_numpy(dtype=float)).all(axis=1)
-    if "fix_type" in gps.columns:
-        good &= gps["fix_type"].to_numpy(dtype=float) >= MIN_GPS_FIX_TYPE
-    if not good.any():
-        return nan
-    gps = gps[good]
-    gps_t = gps.index.to_numpy(dtype=float)
     grid = np.arange(np.floor(np.nanmin(time_s)), np.ceil(np.nanmax(time_s)) + EPHEMERIS_STEP_S, EPHEMERIS_STEP_S)
-    position = [np.interp(grid, gps_t, gps[c].to_numpy(dtype=float)) for c in ("lat_deg", "lon_deg", "alt_m")]
+    if origin is not None:
+        position = origin
+    else:
+        if not flight_log.has("gps"):
+            return nan
+        gps = flight_log["gps"]
+        good = np.isfinite(gps[["lat_deg", "lon_deg", "alt_m"]].to_numpy(dtype=float)).all(axis=1)
+        if "fix_type" in gps.columns:
+            good &= gps["fix_type"].to_numpy(dtype=float) >= MIN_GPS_FIX_TYPE
+        if not good.any():
+            return nan
+        gps = gps[good]
+        gps_t = gps.index.to_numpy(dtype=float)
+        position = [np.interp(grid, gps_t, gps[c].to_numpy(dtype=float)) for c in ("lat_deg", "lon_deg", "alt_m")]
     s_grid, elevation_grid = sun_direction_ned(flight_log.utc(grid), *position)
     s_ned = np.column_stack([np.interp(time_s, grid, s_grid[:, i]) for i in range(3)])
     s_ned /= np.linalg.norm(s_ned, axis=1, keepdims=True)

@@ -66,3 +66,25 @@ def test_refraction_raises_the_apparent_elevation():
     assert 5.0 < geometric[0] < 20.0
     # About 0.1 deg near 10 deg elevation (note 8.1).
     assert 0.04 < apparent[0] - geometric[0] < 0.15
+
+
+def test_interpolated_ephemeris_at_a_fixed_observer():
+    """``sun_prediction.sun_ned_at`` with a fixed observer (what the replay and the app use): the SPA direction
+    on the 1 Hz grid, interpolated in between well inside the 0.01 deg budget; NaN without the log's UTC time."""
+    from dataclasses import replace
+
+    from estimators.sun_prediction import sun_ned_at
+    from ingest.flightlog import FlightLog
+    from tests.estimators_synthetic import ALT0, LAT0, LON0, synthetic_flight
+
+    log = synthetic_flight(5.0)
+    time_s = np.array([1000.0, 1000.25, 1001.5, 1003.0, 1004.75])
+    origin = (LAT0, LON0 + 1.0, ALT0)
+    s_ned, elevation = sun_ned_at(log, time_s, origin=origin)
+    exact, exact_elevation = sun_direction_ned(log.utc(time_s), *origin)
+    angle = np.degrees(np.arccos(np.clip(np.sum(s_ned * exact, axis=1), -1.0, 1.0)))
+    assert angle.max() < 1e-4
+    np.testing.assert_allclose(elevation, exact_elevation, atol=1e-4)
+    np.testing.assert_allclose(s_ned[[0, 3]], exact[[0, 3]], atol=1e-12)  # grid points
+    no_utc = FlightLog(streams=log.streams, meta=replace(log.meta, utc_offset_s=None))
+    assert np.isnan(sun_ned_at(no_utc, time_s, origin=origin)[0]).all()
