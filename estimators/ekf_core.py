@@ -21,10 +21,11 @@ nothing, so the filters' time loops can call it per sample without Python overhe
   ``T_rej``, or GPS back after an outage longer than ``T_out`` -> reset position and velocity to the GPS), and
   :func:`reset_covariance_block` for the reset's covariance (variances to R, cross-covariances zeroed).
 
-Diagnostics layout (one row per scalar update, :data:`DIAG_FLOAT_COLUMNS` / :data:`DIAG_INT_COLUMNS`):
-``diag_f[k] = (time_s, innovation, innovation_var, nis)`` and ``diag_i[k] = (sensor kind, component, accepted)``;
-``counter[0]`` is the number of rows written. Rows beyond the preallocated size are dropped and counted in
-``counter[1]``.
+Diagnostics layout (one row per scalar update, :data:`DIAG_FLOAT_COLUMNS` / :data:`DIAG_INT_COLUMNS`,
+allocated by :func:`diagnostics_arrays`): ``diag_f[k] = (time_s, innovation, innovation_var, nis)`` and
+``diag_i[k] = (sensor kind, component, accepted)``; ``counter[0]`` is the number of rows written. Rows beyond the
+preallocated size are dropped and counted in ``counter[1]``. The filters' int64 counter arrays share the slots
+``C_*`` below (0 and 1 are the recorder's); each filter appends its own after :data:`N_SHARED_COUNTERS`.
 """
 
 from __future__ import annotations
@@ -38,6 +39,22 @@ from numba import njit
 DIAG_FLOAT_COLUMNS = ("time_s", "innovation", "innovation_var", "nis")
 #: Columns of the integer diagnostics array.
 DIAG_INT_COLUMNS = ("sensor", "component", "accepted")
+
+# counter slots shared by the three filters' kernels (read by estimators.results when building the report)
+C_DIAG = 0  # diagnostics rows written (record_update)
+C_DIAG_DROPPED = 1  # diagnostics rows dropped (record_update)
+C_RESETS = 2  # divergence resets
+C_GPS_RESETS = 3  # GPS re-acquisition resets (math note 2.3)
+C_REPAIRS = 4  # covariance eigenvalue repairs
+C_UPDATES = 5  # scalar updates attempted
+C_OUTPUTS = 6  # output epochs written
+N_SHARED_COUNTERS = 7
+
+
+def diagnostics_arrays(capacity: int) -> tuple[np.ndarray, np.ndarray]:
+    """Zeroed recorder arrays ``(diag_f, diag_i)`` for at most ``capacity`` scalar updates (plain Python)."""
+    return (np.zeros((capacity, len(DIAG_FLOAT_COLUMNS))),
+            np.zeros((capacity, len(DIAG_INT_COLUMNS)), dtype=np.int64))
 
 
 @njit(cache=True)
@@ -281,6 +298,27 @@ def repair_covariance(P, min_var, max_var, work, eig_floor):
             P[i, j] = s
     symmetrize(P)
     return True
+
+
+@njit(cache=True)
+def scheduled_repair(P, min_var, max_var, work, eig_floor, n_propagations, pd_check_every):
+    """Covariance upkeep after a propagation: the variance limits every time (:func:`limit_variances`), the full
+    positive-definiteness repair (:func:`repair_covariance`) every ``pd_check_every``-th propagation
+    (``n_propagations`` counts them, this one included). Returns True when eigenvalues had to be clipped."""
+    if n_propagations % pd_check_every == 0:
+        return repair_covariance(P, min_var, max_var, work, eig_floor)
+    limit_variances(P, min_var, max_var)
+    return False
+
+
+@njit(cache=True)
+def accumulate_inputs(acc, dt, gyro, accel):
+    """Sum the IMU input over a deferred covariance interval: ``acc[0] += dt``, ``acc[1:4] += gyro dt``,
+    ``acc[4:7] += accel dt`` (the mean input is ``acc[1:7] / acc[0]``)."""
+    acc[0] += dt
+    for i in range(3):
+        acc[1 + i] += gyro[i] * dt
+        acc[4 + i] += accel[i] * dt
 
 
 @njit(cache=True)

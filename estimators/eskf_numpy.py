@@ -17,17 +17,22 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from estimators import eskf_model as m
+from estimators.ekf_core import C_GPS_RESETS, C_OUTPUTS, C_REPAIRS, C_RESETS
 from estimators.events import AIRSPEED, BARO, GPS_POS, GPS_VEL, MAG, OUTPUT, SIDESLIP, SUN, ZERO_VELOCITY
 from estimators.full_state_direct import PD_CHECK_EVERY
-from estimators.full_state_direct_numpy import GpsMonitor, healthy, joseph_update, repair, skew, tangent_basis, wrap
+from estimators.full_state_direct_numpy import (
+    GpsMonitor,
+    components,
+    healthy,
+    innovation,
+    joseph_update,
+    record,
+    repair,
+    skew,
+    tangent_basis,
+)
 from estimators.full_state_indirect import (
-    C_DIAG,
     C_FLUSHES,
-    C_GPS_RESETS,
-    C_OUTPUTS,
-    C_REPAIRS,
-    C_RESETS,
-    C_UPDATES,
     P_COV_DT,
     P_FIELD,
     P_G,
@@ -247,14 +252,7 @@ def run_reference(imu_t, imu_gyro, imu_accel, ev_t, ev_kind, ev_imu, ev_val, ev_
                     counters[C_GPS_RESETS] += counted
                     j += 1
                     continue
-            if kind in (BARO, AIRSPEED, SIDESLIP):
-                comps = [0]
-            elif kind == SUN:
-                comps = [0, 1]
-            elif kind == GPS_VEL and paper_vel:
-                comps = [] if math.hypot(values[0], values[1]) < params[P_VMIN] else [3, 4]
-            else:
-                comps = [0, 1, 2]
+            comps = components(kind, values, paper_vel, params[P_VMIN])
             if kind == SUN:
                 rows = [h_and_H(x, kind, cc, values, field, lever, gyro) for cc in range(3)]
                 basis = tangent_basis(np.array([r[0] for r in rows]))
@@ -268,22 +266,10 @@ def run_reference(imu_t, imu_gyro, imu_accel, ev_t, ev_kind, ev_imu, ev_val, ev_
                     nu, H_full, r_var = basis[:, c] @ (values[0:3] - h3), basis[:, c] @ H3, ev_var[j, c]
                 else:
                     h, H_full = h_and_H(x, kind, c, values, field, lever, gyro)
-                    if kind == GPS_VEL and c >= 3:
-                        vg = math.hypot(values[0], values[1])
-                        z, r_var = (vg, ev_var[j, 0]) if c == 3 else (math.atan2(values[1], values[0]),
-                                                                      ev_var[j, 0] / vg ** 2)
-                    else:
-                        z, r_var = values[c], ev_var[j, c]
-                    nu = z - h
-                    if kind == GPS_VEL and c == 4:
-                        nu = wrap(nu)
+                    nu, r_var = innovation(kind, c, values, ev_var[j], h)
                 nu -= H_full @ dx
                 accepted, s_var, nis, dx_r, P = joseph_update(P, H_full[sel], nu, r_var, gates[kind])
-                counters[C_UPDATES] += 1
-                row = counters[C_DIAG]
-                diag_f[row] = t, nu, s_var, nis
-                diag_i[row] = kind, c, int(accepted)
-                counters[C_DIAG] += 1
+                record(diag_f, diag_i, counters, t, kind, c, nu, s_var, nis, accepted)
                 if kind in (GPS_POS, GPS_VEL):
                     gps.record(kind, c, t, accepted)
                 if accepted:

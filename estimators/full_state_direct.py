@@ -56,6 +56,15 @@ from numba import njit
 
 from estimators import ekf_core, events
 from estimators.config import EstimatorConfig
+from estimators.ekf_core import (
+    C_DIAG,
+    C_GPS_RESETS,
+    C_OUTPUTS,
+    C_REPAIRS,
+    C_RESETS,
+    C_UPDATES,
+    N_SHARED_COUNTERS,
+)
 from estimators.events import (
     AIRSPEED,
     BARO,
@@ -68,9 +77,9 @@ from estimators.events import (
     ZERO_VELOCITY,
     ReplayInputs,
 )
-from estimators.results import EstimatorReport, EstimatorRun, diagnostics_frame, states_frame
+from estimators.results import EstimatorRun, diagnostics_frame, kernel_report, replay_details, states_frame
 from estimators.state_table import StateSpec, initial_covariance, random_walk_psd
-from estimators.sun_vector import sun_tangent_basis
+from estimators.sun_vector import sun_tangent_basis, tangent_projection
 from ingest.flightlog import FlightLog
 from ingest.frames import euler_to_matrix
 
@@ -88,7 +97,7 @@ L_BM = 2
 L_BB = 3
 N_LAYOUT = 4
 
-# parameter array slots
+# parameter array slots (0 .. N_SHARED_PARAMS - 1 are shared with the indirect filter, see shared_params)
 P_G = 0  # gravity [m/s^2]
 P_NG2 = 1  # gyro noise density^2 [(rad/s)^2/Hz]
 P_NA2 = 2  # accel noise density^2 [(m/s^2)^2/Hz]
@@ -98,6 +107,7 @@ P_GPS_REJECT_S = 7  # a GPS component rejected this long -> position/velocity re
 P_GPS_OUTAGE_S = 8  # GPS back after an outage this long -> position/velocity reset [s]
 P_VMIN = 9  # minimum ground speed for course updates [m/s]
 P_PAPER_VEL = 10  # 1: GPS velocity as ground speed and course
+N_SHARED_PARAMS = 11
 P_PAPER_INDIRECT = 11  # 1: paper-literal indirect (group error state, reset after the group)
 N_PARAMS = 12
 
@@ -105,17 +115,10 @@ N_PARAMS = 12
 OUT_COLUMNS = ("time_s", "roll", "pitch", "yaw", "pn", "pe", "pd", "vn", "ve", "vd", "wn", "we",
                "roll_std", "pitch_std", "yaw_std", "pn_std", "pe_std", "pd_std", "vn_std", "ve_std", "vd_std",
                "wn_std", "we_std")
-# counters
-C_DIAG = 0
-C_DIAG_DROPPED = 1
-C_RESETS = 2
-C_GPS_RESETS = 3
-C_REPAIRS = 4
-C_UPDATES = 5
-C_OUTPUTS = 6
-C_PITCH_GUARD = 7
-C_FLUSHES = 8
-N_COUNTERS = 9
+# counters: the shared slots of ekf_core (C_DIAG .. C_OUTPUTS), then this filter's
+C_PITCH_GUARD = N_SHARED_COUNTERS
+C_FLUSHES = N_SHARED_COUNTERS + 1
+N_COUNTERS = N_SHARED_COUNTERS + 2
 
 #: Euler-angle filters stop attitude-dependent updates above this pitch (math note 7.6) [rad].
 PITCH_GUARD_RAD = math.radians(85.0)
@@ -492,6 +495,17 @@ def measured_value(kind, comp, values, variances):
 
 
 @njit(cache=True)
+def scalar_innovation(kind, comp, values, variances, h):
+    """Innovation ``nu = z - h`` (the course wrapped to [-pi, pi)) and variance ``R`` of a scalar component
+    whose prediction is ``h`` (both full-state filters)."""
+    z, r_var = measured_value(kind, comp, values, variances)
+    nu = z - h
+    if kind == GPS_VEL and comp == 4:
+        nu = ekf_core.wrap_pi(nu)
+    return nu, r_var
+
+
+@njit(cache=True)
 def _flush_covariance(P, x_cov, acc, g, params, layout, rw_var, min_var, max_var, R, S, W, A, F, Qc, work, active,
                       counters):
     """Propagate P over the accumulated interval ``acc[0]`` with the mean inputs ``acc[1:7] / acc[0]``."""
@@ -502,11 +516,8 @@ def _flush_covariance(P, x_cov, acc, g, params, layout, rw_var, min_var, max_var
     process_noise(x_cov, params[P_NG2], params[P_NA2], rw_var, dt, R, S, W, Qc)
     ekf_core.propagate_covariance(P, F, Qc, work, active)
     counters[C_FLUSHES] += 1
-    if counters[C_FLUSHES] % PD_CHECK_EVERY == 0:
-        if ekf_core.repair_covariance(P, min_var, max_var, work, EIG_FLOOR):
-            counters[C_REPAIRS] += 1
-    else:
-        ekf_core.limit_variances(P, min_var, max_var)
+    if ekf_core.scheduled_repair(P, min_var, max_var, work, EIG_FLOOR, counters[C_FLUSHES], PD_CHECK_EVERY):
+        counters[C_REPAIRS] += 1
     for i in range(7):
         acc[i] = 0.0
 
@@ -587,10 +598,7 @@ def run_kernel(imu_t, imu_gyro, imu_accel, ev_t, ev_kind, ev_imu, ev_val, ev_var
                         x_cov[i] = x[i]
                 step = t_next - t
                 propagate_state(x, gyro, accel, step, g, layout, R, S, W, k1, k2, k3, k4, xt)
-                acc[0] += step
-                for i in range(3):
-                    acc[1 + i] += gyro[i] * step
-                    acc[4 + i] += accel[i] * step
+                ekf_core.accumulate_inputs(acc, step, gyro, accel)
                 t = t_next
                 if acc[0] >= cov_dt * (1.0 - 1e-9):
                     _flush_covariance(P, x_cov, acc, g, params, layout, rw_var, min_var, max_var, R, S, W, A, F,
@@ -657,18 +665,11 @@ def run_kernel(imu_t, imu_gyro, imu_accel, ev_t, ev_kind, ev_imu, ev_val, ev_var
                             h3[cc] = measurement(x, kind, cc, values, field, layout, R, S, W, H)
                             for i in range(n):
                                 H3[cc, i] = H[i]
-                    nu = 0.0
-                    for cc in range(3):
-                        nu += basis[cc, c] * (values[cc] - h3[cc])
-                    for i in range(n):
-                        H[i] = basis[0, c] * H3[0, i] + basis[1, c] * H3[1, i] + basis[2, c] * H3[2, i]
+                    nu = tangent_projection(basis, c, values, h3, H3, H)
                     r_var = ev_var[j, c]
                 else:
                     h = measurement(x, kind, c, values, field, layout, R, S, W, H)
-                    z, r_var = measured_value(kind, c, values, ev_var[j])
-                    nu = z - h
-                    if kind == GPS_VEL and c == 4:
-                        nu = ekf_core.wrap_pi(nu)
+                    nu, r_var = scalar_innovation(kind, c, values, ev_var[j], h)
                 if paper_indirect:
                     # eq 49 corrected: innovation of the error state, z - h(x_hat-) - H x_err
                     for i in range(n):
@@ -790,7 +791,18 @@ def kernel_inputs(inputs: ReplayInputs, config: EstimatorConfig, *, mode: str = 
     x0[I_BG:I_BG + 3] = align.gyro_bias_rad_s
     P0 = initial_covariance(table)
     rw_var = random_walk_psd(table)
-    params = np.zeros(N_PARAMS)
+    params = shared_params(inputs, config, N_PARAMS)
+    params[P_PAPER_INDIRECT] = 1.0 if mode == "paper_indirect" else 0.0
+    max_var = np.full(n, 1e12)
+    max_var[names.index("yaw")] = math.pi ** 2  # yaw std capped at 180 deg (math note 7.2)
+    return KernelInputs(table=table, x0=x0, P0=P0, layout=layout_of(table), params=params, gates=gates_per_kind(config),
+                        rw_var=rw_var, min_var=np.full(n, MIN_VARIANCE), max_var=max_var)
+
+
+def shared_params(inputs: ReplayInputs, config: EstimatorConfig, n_params: int) -> np.ndarray:
+    """The kernel parameter array of a full-state filter (length ``n_params``) with the slots both filters share
+    (``P_G`` .. ``P_PAPER_VEL``, the first :data:`N_SHARED_PARAMS`) filled; the rest zero."""
+    params = np.zeros(n_params)
     params[P_G] = inputs.gravity_m_s2
     params[P_NG2] = config.noise.gyro_noise_rad_s_sqrt_hz ** 2
     params[P_NA2] = config.noise.accel_noise_m_s2_sqrt_hz ** 2
@@ -800,15 +812,24 @@ def kernel_inputs(inputs: ReplayInputs, config: EstimatorConfig, *, mode: str = 
     params[P_GPS_OUTAGE_S] = config.timing.gps_outage_reset_s
     params[P_VMIN] = config.timing.min_ground_speed_m_s
     params[P_PAPER_VEL] = 1.0 if config.gps_velocity_mode == "paper" else 0.0
-    params[P_PAPER_INDIRECT] = 1.0 if mode == "paper_indirect" else 0.0
+    return params
+
+
+def gates_per_kind(config: EstimatorConfig) -> np.ndarray:
+    """Scalar gate per event kind (:mod:`estimators.events` codes) from ``config.gates``; pseudo-measurements and
+    outputs ungated (inf)."""
     gate_cfg = config.gates
     gates = np.full(len(events.SENSOR_NAMES), math.inf)
     gates[BARO], gates[AIRSPEED], gates[GPS_POS] = gate_cfg.baro, gate_cfg.airspeed, gate_cfg.gps_pos
     gates[GPS_VEL], gates[MAG], gates[SUN] = gate_cfg.gps_vel, gate_cfg.mag, gate_cfg.sun
-    max_var = np.full(n, 1e12)
-    max_var[names.index("yaw")] = math.pi ** 2  # yaw std capped at 180 deg (math note 7.2)
-    return KernelInputs(table=table, x0=x0, P0=P0, layout=layout_of(table), params=params, gates=gates,
-                        rw_var=rw_var, min_var=np.full(n, MIN_VARIANCE), max_var=max_var)
+    return gates
+
+
+def accel_bias_degradations(plan: events.SensorPlan, estimated: bool, configured: bool) -> tuple[str, ...]:
+    """The sensor plan's degradations, plus the accelerometer bias left out without GPS (math note 7.3)."""
+    extra = () if estimated or not configured else (
+        "no GPS: accelerometer bias not estimated (no absolute velocity reference)",)
+    return (*plan.degradations, *extra)
 
 
 def diagnostics_capacity(ev: events.MeasurementEvents) -> int:
@@ -842,9 +863,7 @@ def run(flight_log: FlightLog, inputs: ReplayInputs, config: EstimatorConfig, *,
     out_f = np.full((n_out, len(OUT_COLUMNS)), np.nan)
     out_x = np.full((n_out, n), np.nan)
     out_sx = np.full((n_out, n), np.nan)
-    capacity = diagnostics_capacity(ev)
-    diag_f = np.zeros((capacity, 4))
-    diag_i = np.zeros((capacity, 3), dtype=np.int64)
+    diag_f, diag_i = ekf_core.diagnostics_arrays(diagnostics_capacity(ev))
     counters = np.zeros(N_COUNTERS, dtype=np.int64)
     args = (imu.time_s, imu.gyro_rad_s, imu.accel_m_s2, ev.time_s, ev.kind, ev.imu_index, ev.values, ev.variances,
             k.x0, k.P0, k.layout, k.params, k.gates, k.rw_var, k.min_var, k.max_var, out_f, out_x, out_sx, diag_f,
@@ -881,36 +900,17 @@ def _assemble(inputs, k: KernelInputs, out_f, out_x, out_sx, diag_f, diag_i, cou
                           wind=plan.has_airspeed, height=plan.has_baro or plan.has_gps)
     diagnostics = diagnostics_frame(diag_f, diag_i, int(counters[C_DIAG]))
     names = [s.name for s in k.table]
-    degradations = list(plan.degradations)
-    if "bax" not in names and config_accel_bias:
-        degradations.append("no GPS: accelerometer bias not estimated (no absolute velocity reference)")
-    warnings = list(inputs.warnings)
-    if counters[C_RESETS]:
-        warnings.append(f"filter diverged and was reset {counters[C_RESETS]} times")
+    warnings = []
     if counters[C_PITCH_GUARD]:
         warnings.append(f"{counters[C_PITCH_GUARD]} updates skipped at |pitch| > 85 deg (Euler singularity)")
-    if counters[C_DIAG_DROPPED]:
-        warnings.append(f"{counters[C_DIAG_DROPPED]} diagnostics rows dropped")
-    final = {name: float(x_final[i]) for i, name in enumerate(names)}
     details = {
         "mode": mode,
         "states": names,
-        "final_state": final,
-        "alignment": {"tilt_source": inputs.alignment.tilt_source, "yaw_source": inputs.alignment.yaw_source,
-                      "still_window_s": inputs.alignment.still_window_s},
-        "gps_delay_s": inputs.gps_delay_s,
-        "gps_time_rule": inputs.gps_time_rule,
-        "baro_offset_m": inputs.baro_offset_m,
-        "mag_field_source": inputs.mag_field_source,
-        "origin": {"lat_deg": inputs.origin.lat_deg, "lon_deg": inputs.origin.lon_deg,
-                   "alt_m": inputs.origin.alt_m, "source": inputs.origin.source},
+        "final_state": {name: float(x_final[i]) for i, name in enumerate(names)},
+        **replay_details(inputs),
         "final_state_std": {name: float(out_sx[counters[C_OUTPUTS] - 1, i]) if counters[C_OUTPUTS] else math.nan
                             for i, name in enumerate(names)},
     }
-    used = tuple(s for s in plan.used)
-    report = EstimatorReport(estimator=NAME, used=used, skipped=dict(plan.skipped),
-                             degradations=tuple(degradations), resets=int(counters[C_RESETS]),
-                             gps_resets=int(counters[C_GPS_RESETS]), covariance_repairs=int(counters[C_REPAIRS]),
-                             n_imu_samples=len(inputs.imu.time_s), n_updates=int(counters[C_UPDATES]),
-                             timings_s=timings, warnings=tuple(warnings), details=details)
+    report = kernel_report(NAME, inputs, counters, timings_s=timings, details=details, warnings=warnings,
+                           degradations=accel_bias_degradations(plan, "bax" in names, config_accel_bias))
     return EstimatorRun(states=states, diagnostics=diagnostics, report=report)

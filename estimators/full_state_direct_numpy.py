@@ -13,16 +13,11 @@ import math
 
 import numpy as np
 
+from estimators.ekf_core import C_DIAG, C_GPS_RESETS, C_OUTPUTS, C_REPAIRS, C_RESETS, C_UPDATES
 from estimators.events import AIRSPEED, BARO, GPS_POS, GPS_VEL, MAG, OUTPUT, SIDESLIP, SUN, ZERO_VELOCITY
 from estimators.full_state_direct import (
-    C_DIAG,
     C_FLUSHES,
-    C_GPS_RESETS,
-    C_OUTPUTS,
     C_PITCH_GUARD,
-    C_REPAIRS,
-    C_RESETS,
-    C_UPDATES,
     EIG_FLOOR,
     L_BA,
     L_BB,
@@ -229,6 +224,38 @@ def tangent_basis(h):
     return np.column_stack([t1, np.cross(u, t1)])
 
 
+def components(kind, values, paper_vel, vmin):
+    """Scalar components of an event (paper-mode GPS velocity: ground speed and course, none below ``vmin``)."""
+    if kind in (BARO, AIRSPEED, SIDESLIP):
+        return [0]
+    if kind == SUN:
+        return [0, 1]
+    if kind == GPS_VEL and paper_vel:
+        return [] if math.hypot(values[0], values[1]) < vmin else [3, 4]
+    return [0, 1, 2]
+
+
+def innovation(kind, comp, values, variances, h):
+    """(nu, R) of a scalar component predicted as ``h``; paper-mode ground speed and course from the NED
+    velocity (sigma_chi = sigma_V / V_g), the course innovation wrapped."""
+    if kind == GPS_VEL and comp >= 3:
+        vg = math.hypot(values[0], values[1])
+        z, r_var = (vg, variances[0]) if comp == 3 else (math.atan2(values[1], values[0]), variances[0] / vg ** 2)
+    else:
+        z, r_var = values[comp], variances[comp]
+    nu = z - h
+    return (wrap(nu) if kind == GPS_VEL and comp == 4 else nu), r_var
+
+
+def record(diag_f, diag_i, counters, t, kind, comp, nu, s_var, nis, accepted):
+    """One scalar update: counted and written to the diagnostics arrays."""
+    counters[C_UPDATES] += 1
+    row = counters[C_DIAG]
+    diag_f[row] = t, nu, s_var, nis
+    diag_i[row] = kind, comp, int(accepted)
+    counters[C_DIAG] += 1
+
+
 class GpsMonitor:
     """GPS re-acquisition rule of math note 2.3 (the twin of :func:`estimators.ekf_core.gps_reset_due`): a reset
     of position and velocity when a GPS position or velocity component has been rejected continuously for
@@ -348,14 +375,7 @@ def run_reference(imu_t, imu_gyro, imu_accel, ev_t, ev_kind, ev_imu, ev_val, ev_
                     counters[C_GPS_RESETS] += counted
                     j += 1
                     continue
-            if kind in (BARO, AIRSPEED, SIDESLIP):
-                comps = [0]
-            elif kind == SUN:
-                comps = [0, 1]
-            elif kind == GPS_VEL and paper_vel:
-                comps = [] if math.hypot(values[0], values[1]) < params[P_VMIN] else [3, 4]
-            else:
-                comps = [0, 1, 2]
+            comps = components(kind, values, paper_vel, params[P_VMIN])
             x_prior, x_err = x.copy(), np.zeros(len(x))
             if kind == SUN:
                 basis = tangent_basis(np.array([h_and_H(x, kind, c, values, field, layout)[0] for c in range(3)]))
@@ -368,23 +388,11 @@ def run_reference(imu_t, imu_gyro, imu_accel, ev_t, ev_kind, ev_imu, ev_val, ev_
                     nu, H, r_var = basis[:, c] @ (values[0:3] - h3), basis[:, c] @ H3, ev_var[j, c]
                 else:
                     h, H = h_and_H(x_lin, kind, c, values, field, layout)
-                    if kind == GPS_VEL and c >= 3:
-                        vg = math.hypot(values[0], values[1])
-                        z, r_var = (vg, ev_var[j, 0]) if c == 3 else (math.atan2(values[1], values[0]),
-                                                                      ev_var[j, 0] / vg ** 2)
-                    else:
-                        z, r_var = values[c], ev_var[j, c]
-                    nu = z - h
-                    if kind == GPS_VEL and c == 4:
-                        nu = wrap(nu)
+                    nu, r_var = innovation(kind, c, values, ev_var[j], h)
                 if paper_indirect:
                     nu -= H @ x_err
                 accepted, s_var, nis, dx, P = joseph_update(P, H, nu, r_var, gates[kind])
-                counters[C_UPDATES] += 1
-                row = counters[C_DIAG]
-                diag_f[row] = t, nu, s_var, nis
-                diag_i[row] = kind, c, int(accepted)
-                counters[C_DIAG] += 1
+                record(diag_f, diag_i, counters, t, kind, c, nu, s_var, nis, accepted)
                 if kind in (GPS_POS, GPS_VEL):
                     gps.record(kind, c, t, accepted)
                 if accepted:

@@ -46,6 +46,7 @@ from numba import njit
 from estimators import ekf_core, events
 from estimators import eskf_model as m
 from estimators.config import EstimatorConfig
+from estimators.ekf_core import C_DIAG, C_GPS_RESETS, C_OUTPUTS, C_REPAIRS, C_RESETS, C_UPDATES, N_SHARED_COUNTERS
 from estimators.events import (
     AIRSPEED,
     BARO,
@@ -61,43 +62,40 @@ from estimators.events import (
 from estimators.full_state_direct import (  # shared with the direct filter: same limits, same event handling
     EIG_FLOOR,
     MIN_VARIANCE,
+    N_SHARED_PARAMS,
+    P_COV_DT,
+    P_FIELD,
+    P_G,
+    P_GPS_OUTAGE_S,
+    P_GPS_REJECT_S,
+    P_NA2,
+    P_NG2,
+    P_PAPER_VEL,
+    P_VMIN,
     PD_CHECK_EVERY,
+    accel_bias_degradations,
     component_range,
     diagnostics_capacity,
-    measured_value,
+    gates_per_kind,
+    scalar_innovation,
+    shared_params,
 )
-from estimators.results import EstimatorReport, EstimatorRun, diagnostics_frame, states_frame
+from estimators.results import EstimatorRun, diagnostics_frame, kernel_report, replay_details, states_frame
 from estimators.state_table import StateSpec, initial_sigmas, random_walk_psd
-from estimators.sun_vector import sun_tangent_basis
+from estimators.sun_vector import sun_tangent_basis, tangent_projection
 from ingest.flightlog import FlightLog
 from ingest.frames import euler_to_quat, quat_to_euler
 
 NAME = "full_state_indirect"
 
-# parameter array slots
-P_G = 0  # gravity [m/s^2]
-P_NG2 = 1  # gyro noise density^2 [(rad/s)^2/Hz]
-P_NA2 = 2  # accel noise density^2 [(m/s^2)^2/Hz]
-P_COV_DT = 3  # covariance propagation interval [s]
-P_FIELD = 4  # 4, 5, 6: unit earth field NED
-P_GPS_REJECT_S = 7  # a GPS component rejected this long -> position/velocity reset [s]
-P_GPS_OUTAGE_S = 8  # GPS back after an outage this long -> position/velocity reset [s]
-P_VMIN = 9  # minimum ground speed for course updates [m/s]
-P_PAPER_VEL = 10  # 1: GPS velocity as ground speed and course
-P_LEVER = 11  # 11, 12, 13: GPS antenna position in body FRD [m]
-P_INJECT_SCALAR = 14  # 1: inject and reset after every scalar update (else after each sensor group)
-N_PARAMS = 15
+# parameter array slots: P_G .. P_PAPER_VEL as the direct filter (full_state_direct.shared_params), then
+P_LEVER = N_SHARED_PARAMS  # 3 slots: GPS antenna position in body FRD [m]
+P_INJECT_SCALAR = P_LEVER + 3  # 1: inject and reset after every scalar update (else after each sensor group)
+N_PARAMS = P_INJECT_SCALAR + 1
 
-# counters
-C_DIAG = 0
-C_DIAG_DROPPED = 1
-C_RESETS = 2
-C_GPS_RESETS = 3
-C_REPAIRS = 4
-C_UPDATES = 5
-C_OUTPUTS = 6
-C_FLUSHES = 7
-N_COUNTERS = 8
+# counters: the shared slots of ekf_core (C_DIAG .. C_OUTPUTS), then this filter's
+C_FLUSHES = N_SHARED_COUNTERS
+N_COUNTERS = N_SHARED_COUNTERS + 1
 
 #: Cap of the attitude-error variances: 180 deg standard deviation (math note 7.2).
 MAX_ATTITUDE_VAR_RAD2 = math.pi ** 2
@@ -223,11 +221,8 @@ def _flush_covariance(P, x_cov, acc, imu_psd, rw_psd, sel, min_var, max_var, mea
             Q[a, b] = Q_full[sel[a], sel[b]]
     ekf_core.propagate_covariance(P, F, Q, work, active)
     counters[C_FLUSHES] += 1
-    if counters[C_FLUSHES] % PD_CHECK_EVERY == 0:
-        if ekf_core.repair_covariance(P, min_var, max_var, work, EIG_FLOOR):
-            counters[C_REPAIRS] += 1
-    else:
-        ekf_core.limit_variances(P, min_var, max_var)
+    if ekf_core.scheduled_repair(P, min_var, max_var, work, EIG_FLOOR, counters[C_FLUSHES], PD_CHECK_EVERY):
+        counters[C_REPAIRS] += 1
     for i in range(7):
         acc[i] = 0.0
 
@@ -352,10 +347,7 @@ def run_kernel(imu_t, imu_gyro, imu_accel, ev_t, ev_kind, ev_imu, ev_val, ev_var
                     x_cov[:] = x
                 step = t_next - t
                 m.propagate_nominal(x, gyro, accel, step, g)
-                acc[0] += step
-                for i in range(3):
-                    acc[1 + i] += gyro[i] * step
-                    acc[4 + i] += accel[i] * step
+                ekf_core.accumulate_inputs(acc, step, gyro, accel)
                 t = t_next
                 if acc[0] >= cov_dt * (1.0 - 1e-9):
                     _flush_covariance(P, x_cov, acc, imu_psd, rw_psd, sel, min_var, max_var, mean_input, F_full,
@@ -411,18 +403,11 @@ def run_kernel(imu_t, imu_gyro, imu_accel, ev_t, ev_kind, ev_imu, ev_val, ev_var
                         for cc in range(3):
                             h3[cc] = measurement(x, kind, cc, values, field, lever, gyro, H_full)
                             H3[cc, :] = H_full
-                    nu = 0.0
-                    for cc in range(3):
-                        nu += basis[cc, c] * (values[cc] - h3[cc])
-                    for i in range(m.NE):
-                        H_full[i] = basis[0, c] * H3[0, i] + basis[1, c] * H3[1, i] + basis[2, c] * H3[2, i]
+                    nu = tangent_projection(basis, c, values, h3, H3, H_full)
                     r_var = ev_var[j, c]
                 else:
                     h = measurement(x, kind, c, values, field, lever, gyro, H_full)
-                    z, r_var = measured_value(kind, c, values, ev_var[j])
-                    nu = z - h
-                    if kind == GPS_VEL and c == 4:
-                        nu = ekf_core.wrap_pi(nu)
+                    nu, r_var = scalar_innovation(kind, c, values, ev_var[j], h)
                 # innovation of the error state accumulated in this group (eq 49 corrected): z - h(x_hat) - H dx
                 for i in range(m.NE):
                     nu -= H_full[i] * dx[i]
@@ -472,27 +457,14 @@ def kernel_inputs(inputs: ReplayInputs, config: EstimatorConfig, flight_log: Fli
     _, W = attitude_matrices(align.roll_rad, align.pitch_rad)
     th = slice(m.E_TH, m.E_TH + 3)
     P0_full[th, th] = W @ np.diag(sigma0[th] ** 2) @ W.T
-    params = np.zeros(N_PARAMS)
-    params[P_G] = inputs.gravity_m_s2
-    params[P_NG2] = config.noise.gyro_noise_rad_s_sqrt_hz ** 2
-    params[P_NA2] = config.noise.accel_noise_m_s2_sqrt_hz ** 2
-    params[P_COV_DT] = 1.0 / config.timing.covariance_rate_hz
-    params[P_FIELD:P_FIELD + 3] = inputs.mag_field_ned
-    params[P_GPS_REJECT_S] = config.timing.gps_reset_after_s
-    params[P_GPS_OUTAGE_S] = config.timing.gps_outage_reset_s
-    params[P_VMIN] = config.timing.min_ground_speed_m_s
-    params[P_PAPER_VEL] = 1.0 if config.gps_velocity_mode == "paper" else 0.0
+    params = shared_params(inputs, config, N_PARAMS)
     params[P_LEVER:P_LEVER + 3] = gps_lever_arm_m(flight_log)
     params[P_INJECT_SCALAR] = 1.0 if inject == "scalar" else 0.0
-    gate_cfg = config.gates
-    gates = np.full(len(events.SENSOR_NAMES), math.inf)
-    gates[BARO], gates[AIRSPEED], gates[GPS_POS] = gate_cfg.baro, gate_cfg.airspeed, gate_cfg.gps_pos
-    gates[GPS_VEL], gates[MAG], gates[SUN] = gate_cfg.gps_vel, gate_cfg.mag, gate_cfg.sun
     n = len(sel)
     max_var = np.full(n, 1e12)
     max_var[(sel >= m.E_TH) & (sel < m.E_TH + 3)] = MAX_ATTITUDE_VAR_RAD2
     return {"table": tuple(full_table[i] for i in sel), "x0": x0, "P0": np.ascontiguousarray(P0_full[np.ix_(sel, sel)]),
-            "sel": sel, "params": params, "gates": gates,
+            "sel": sel, "params": params, "gates": gates_per_kind(config),
             "rw_psd": random_walk_psd(full_table),
             "min_var": np.full(n, MIN_VARIANCE), "max_var": max_var}
 
@@ -528,9 +500,7 @@ def run(flight_log: FlightLog, inputs: ReplayInputs, config: EstimatorConfig, *,
     n_out = ev.count(OUTPUT)
     out_f = np.full((n_out, len(OUT_COLUMNS)), np.nan)
     out_sd = np.full((n_out, n + 3), np.nan)
-    capacity = diagnostics_capacity(ev)
-    diag_f = np.zeros((capacity, 4))
-    diag_i = np.zeros((capacity, 3), dtype=np.int64)
+    diag_f, diag_i = ekf_core.diagnostics_arrays(diagnostics_capacity(ev))
     counters = np.zeros(N_COUNTERS, dtype=np.int64)
     args = (imu.time_s, imu.gyro_rad_s, imu.accel_m_s2, ev.time_s, ev.kind, ev.imu_index, ev.values, ev.variances,
             k["x0"], k["P0"], k["sel"], k["params"], k["gates"], k["rw_psd"], k["min_var"], k["max_var"], out_f,
@@ -582,14 +552,6 @@ def _assemble(inputs: ReplayInputs, k: dict, out_f, out_sd, diag_f, diag_i, coun
                           x[:, m.X_W:m.X_W + 2] if wind else None, inputs.origin, std=std,
                           navigation=plan.has_gps, wind=wind)
     diagnostics = diagnostics_frame(diag_f, diag_i, int(counters[C_DIAG]))
-    degradations = list(plan.degradations)
-    if m.E_BA not in sel and config_accel_bias:
-        degradations.append("no GPS: accelerometer bias not estimated (no absolute velocity reference)")
-    warnings = list(inputs.warnings)
-    if counters[C_RESETS]:
-        warnings.append(f"filter diverged and was reset {counters[C_RESETS]} times")
-    if counters[C_DIAG_DROPPED]:
-        warnings.append(f"{counters[C_DIAG_DROPPED]} diagnostics rows dropped")
     table = k["table"]
     details = {
         "mode": f"error-state (multiplicative quaternion), injection per {inject}",
@@ -597,18 +559,8 @@ def _assemble(inputs: ReplayInputs, k: dict, out_f, out_sd, diag_f, diag_i, coun
         "final_state": {name: float(x_final[i]) for i, name in enumerate(NOMINAL_NAMES)},
         "final_state_std": {s.name: float(sd[-1, a]) if count else math.nan for a, s in enumerate(table)},
         "gps_lever_arm_m": [float(v) for v in k["params"][P_LEVER:P_LEVER + 3]],
-        "alignment": {"tilt_source": inputs.alignment.tilt_source, "yaw_source": inputs.alignment.yaw_source,
-                      "still_window_s": inputs.alignment.still_window_s},
-        "gps_delay_s": inputs.gps_delay_s,
-        "gps_time_rule": inputs.gps_time_rule,
-        "baro_offset_m": inputs.baro_offset_m,
-        "mag_field_source": inputs.mag_field_source,
-        "origin": {"lat_deg": inputs.origin.lat_deg, "lon_deg": inputs.origin.lon_deg,
-                   "alt_m": inputs.origin.alt_m, "source": inputs.origin.source},
+        **replay_details(inputs),
     }
-    report = EstimatorReport(estimator=NAME, used=tuple(plan.used), skipped=dict(plan.skipped),
-                             degradations=tuple(degradations), resets=int(counters[C_RESETS]),
-                             gps_resets=int(counters[C_GPS_RESETS]), covariance_repairs=int(counters[C_REPAIRS]),
-                             n_imu_samples=len(inputs.imu.time_s), n_updates=int(counters[C_UPDATES]),
-                             timings_s=timings, warnings=tuple(warnings), details=details)
+    report = kernel_report(NAME, inputs, counters, timings_s=timings, details=details,
+                           degradations=accel_bias_degradations(plan, m.E_BA in sel, config_accel_bias))
     return EstimatorRun(states=states, diagnostics=diagnostics, report=report)

@@ -15,7 +15,8 @@ import numpy as np
 import pandas as pd
 
 from estimators import environment
-from estimators.events import COMPONENT_NAMES, SENSOR_NAMES, Origin
+from estimators.ekf_core import C_DIAG_DROPPED, C_GPS_RESETS, C_REPAIRS, C_RESETS, C_UPDATES
+from estimators.events import COMPONENT_NAMES, SENSOR_NAMES, Origin, ReplayInputs
 
 #: Columns of the states table, in order.
 STATE_COLUMNS = ("estimator", "time_s", "roll_deg", "pitch_deg", "yaw_deg", "lat_deg", "lon_deg", "alt_m",
@@ -98,6 +99,60 @@ class EstimatorRun:
     states: pd.DataFrame
     diagnostics: pd.DataFrame
     report: EstimatorReport
+
+
+def replay_details(inputs: ReplayInputs) -> dict:
+    """The facts of the replay inputs every report's ``details`` carries (JSON-serialisable): initial alignment
+    sources, GPS delay and time rule, barometer offset, magnetic-field source and the NED origin."""
+    align, origin = inputs.alignment, inputs.origin
+    return {
+        "alignment": {"tilt_source": align.tilt_source, "yaw_source": align.yaw_source,
+                      "still_window_s": align.still_window_s},
+        "gps_delay_s": inputs.gps_delay_s,
+        "gps_time_rule": inputs.gps_time_rule,
+        "baro_offset_m": inputs.baro_offset_m,
+        "mag_field_source": inputs.mag_field_source,
+        "origin": {"lat_deg": origin.lat_deg, "lon_deg": origin.lon_deg, "alt_m": origin.alt_m,
+                   "source": origin.source},
+    }
+
+
+def kernel_report(name: str, inputs: ReplayInputs, counters: np.ndarray, *, timings_s: dict[str, float],
+                  details: dict, warnings=(), diverged: str = "filter", used=None, skipped=None,
+                  degradations=None) -> EstimatorReport:
+    """The report of a compiled run from its counter array (the shared slots of :mod:`estimators.ekf_core`).
+
+    Parameters
+    ----------
+    name : str
+        Registry name.
+    inputs : ReplayInputs
+        The run's inputs (sensor plan, warnings, IMU rows).
+    counters : ndarray of int64
+        The kernel's counters.
+    timings_s, details
+        As :class:`EstimatorReport`.
+    warnings : iterable of str
+        The estimator's own warnings, listed after the inputs' warnings and the divergence warning.
+    diverged : str
+        What diverged, in the divergence warning (``"filter"``, ``"a stage"``).
+    used, skipped, degradations : optional
+        Override the sensor plan's.
+    """
+    plan = inputs.plan
+    notes = list(inputs.warnings)
+    if counters[C_RESETS]:
+        notes.append(f"{diverged} diverged and was reset {counters[C_RESETS]} times")
+    notes += list(warnings)
+    if counters[C_DIAG_DROPPED]:
+        notes.append(f"{counters[C_DIAG_DROPPED]} diagnostics rows dropped")
+    return EstimatorReport(estimator=name, used=tuple(plan.used if used is None else used),
+                           skipped=dict(plan.skipped if skipped is None else skipped),
+                           degradations=tuple(plan.degradations if degradations is None else degradations),
+                           resets=int(counters[C_RESETS]), gps_resets=int(counters[C_GPS_RESETS]),
+                           covariance_repairs=int(counters[C_REPAIRS]), n_imu_samples=len(inputs.imu.time_s),
+                           n_updates=int(counters[C_UPDATES]), timings_s=timings_s, warnings=tuple(notes),
+                           details=details)
 
 
 def states_frame(time_s, roll_rad, pitch_rad, yaw_rad, position_ned_m, velocity_ned_m_s, wind_ne_m_s,

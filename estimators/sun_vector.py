@@ -1139,6 +1139,22 @@ def sun_tangent_basis(h):
 
 
 @njit(cache=True)
+def tangent_projection(basis, axis, z, h3, H3, H):
+    """One scalar of the 2-DOF sun update (note 8.5): the innovation ``nu = t^T (z - h)`` along the tangent axis
+    ``t = basis[:, axis]`` and its Jacobian row ``H = t^T H3`` (written into ``H``, length n).
+
+    ``z``: measured body-frame unit vector (its first 3 entries); ``h3`` (3,) and ``H3`` (3, n): predicted vector
+    and its Jacobian.
+    """
+    nu = 0.0
+    for c in range(3):
+        nu += basis[c, axis] * (z[c] - h3[c])
+    for i in range(H.shape[0]):
+        H[i] = basis[0, axis] * H3[0, i] + basis[1, axis] * H3[1, i] + basis[2, axis] * H3[2, i]
+    return nu
+
+
+@njit(cache=True)
 def sun_measurement_noise(sigma_rad):
     """Measurement covariance of the 3-vector form, ``sigma_rad^2 I_3`` [-], from the solver's ``sigma_rad``."""
     return sigma_rad * sigma_rad * np.eye(3)

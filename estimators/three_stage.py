@@ -58,8 +58,17 @@ from scipy.stats import chi2
 
 from estimators import ekf_core, events
 from estimators.config import EstimatorConfig
+from estimators.ekf_core import C_DIAG, C_GPS_RESETS, C_OUTPUTS, C_REPAIRS, C_RESETS, C_UPDATES, N_SHARED_COUNTERS
 from estimators.events import AIRSPEED, BARO, GPS_POS, GPS_VEL, MAG, OUTPUT, SUN, ReplayInputs
-from estimators.results import ACCEL, WIND, EstimatorReport, EstimatorRun, diagnostics_frame, states_frame
+from estimators.results import (
+    ACCEL,
+    WIND,
+    EstimatorRun,
+    diagnostics_frame,
+    kernel_report,
+    replay_details,
+    states_frame,
+)
 from estimators.state_table import StateSpec, initial_covariance, process_noise_psd
 from estimators.sun_vector import sun_tangent_basis
 from estimators.three_stage_models import (
@@ -97,16 +106,9 @@ OUT_COLUMNS = ("time_s", "roll", "pitch", "yaw", "pn", "pe", "pd", "vn", "ve", "
 (O_TIME, O_ROLL, O_PITCH, O_YAW, O_PN, O_PE, O_PD, O_VN, O_VE, O_VD, O_WN, O_WE, O_ROLL_STD, O_PITCH_STD, O_YAW_STD,
  O_PN_STD, O_PE_STD, O_VN_STD, O_VE_STD, O_WN_STD, O_WE_STD) = range(len(OUT_COLUMNS))
 
-# kernel counters (0 and 1 are ekf_core.record_update's row and dropped counts)
-C_DIAG = 0
-C_DIAG_DROPPED = 1
-C_RESETS = 2
-C_GPS_RESETS = 3
-C_REPAIRS = 4
-C_UPDATES = 5
-C_OUTPUTS = 6
-C_PITCH_GUARD = 7
-N_COUNTERS = 8
+# kernel counters: the shared slots of ekf_core (C_DIAG .. C_OUTPUTS), then this filter's
+C_PITCH_GUARD = N_SHARED_COUNTERS
+N_COUNTERS = N_SHARED_COUNTERS + 1
 
 #: Attitude updates are skipped beyond this pitch (Euler singularity, math note 7.6) [rad].
 PITCH_GUARD_RAD = math.radians(85.0)
@@ -399,10 +401,7 @@ def _propagate_states(dt, rates, f_b, va, prm, x1, x2, x3, stage3_on):
 @njit(cache=True)
 def _accumulate(acc, dt, rates, f_b, va):
     """Sum the inputs of an interval for a deferred covariance propagation: (dt, omega dt, f dt, V_a dt)."""
-    acc[0] += dt
-    for i in range(3):
-        acc[1 + i] += rates[i] * dt
-        acc[4 + i] += f_b[i] * dt
+    ekf_core.accumulate_inputs(acc, dt, rates, f_b)
     acc[7] += va * dt
 
 
@@ -1024,8 +1023,7 @@ def run(flight_log: FlightLog, inputs: ReplayInputs, config: EstimatorConfig, *,
     ev, imu = inputs.events, inputs.imu
     out = np.full((ev.count(OUTPUT), len(OUT_COLUMNS)), np.nan)
     capacity = diagnostics_capacity(ev, float(imu.time_s[-1] - imu.time_s[0]), options)
-    diag_f = np.zeros((capacity, len(ekf_core.DIAG_FLOAT_COLUMNS)))
-    diag_i = np.zeros((capacity, len(ekf_core.DIAG_INT_COLUMNS)), dtype=np.int64)
+    diag_f, diag_i = ekf_core.diagnostics_arrays(capacity)
     counters = np.zeros(N_COUNTERS, dtype=np.int64)
     x1, P1, x2, P2 = setup.x1.copy(), setup.P1.copy(), setup.x2.copy(), setup.P2.copy()
     x3, P3 = setup.x3.copy(), setup.P3.copy()
@@ -1043,35 +1041,23 @@ def run(flight_log: FlightLog, inputs: ReplayInputs, config: EstimatorConfig, *,
     states = states_frame(o[:, O_TIME], o[:, O_ROLL], o[:, O_PITCH], o[:, O_YAW], o[:, O_PN:O_PD + 1],
                           o[:, O_VN:O_VD + 1], o[:, O_WN:O_WE + 1], inputs.origin, std=std,
                           navigation=plan.has_gps, wind=setup.params.fixed_wing_nav)
-    warnings = list(inputs.warnings)
-    if counters[C_RESETS]:
-        warnings.append(f"a stage diverged and was reset {counters[C_RESETS]} times")
+    warnings = []
     if counters[C_PITCH_GUARD]:
         warnings.append(f"{counters[C_PITCH_GUARD]} attitude updates skipped at |pitch| > 85 deg")
-    if counters[C_DIAG_DROPPED]:
-        warnings.append(f"{counters[C_DIAG_DROPPED]} diagnostics rows dropped")
     navigating = np.isfinite(o[:, O_PN])
     details = {
         "modes": setup.modes,
         "states": {stage: [s.name for s in table] for stage, table in setup.tables.items()},
         "final_state": {"stage1": x1.tolist(), "stage2": x2.tolist(), "stage3": x3.tolist()},
         "gyro_bias_rad_s": setup.params.gyro_bias_rad_s.tolist(),
-        "alignment": {"tilt_source": inputs.alignment.tilt_source, "yaw_source": inputs.alignment.yaw_source,
-                      "still_window_s": inputs.alignment.still_window_s},
         "stage3_start_s": float(o[navigating, O_TIME][0]) if navigating.any() else None,
-        "gps_delay_s": inputs.gps_delay_s,
-        "baro_offset_m": inputs.baro_offset_m,
-        "mag_field_source": inputs.mag_field_source,
         "accel_update_rate_hz": options.accel_update_rate_hz,
         "accel_tau": options.accel_tau,
+        **replay_details(inputs),
     }
     unused = {name: "not part of the three-stage estimator" for name in UNUSED_SENSORS if name in plan.used}
-    report = EstimatorReport(estimator=NAME, used=tuple(s for s in plan.used if s not in unused),
-                             skipped={**plan.skipped, **unused},
-                             degradations=plan.degradations, resets=int(counters[C_RESETS]),
-                             gps_resets=int(counters[C_GPS_RESETS]), covariance_repairs=int(counters[C_REPAIRS]),
-                             n_imu_samples=len(imu.time_s), n_updates=int(counters[C_UPDATES]),
-                             timings_s={"kernel": kernel_s, "total": time.perf_counter() - started},
-                             warnings=tuple(warnings), details=details)
+    report = kernel_report(NAME, inputs, counters, diverged="a stage", warnings=warnings, details=details,
+                           used=tuple(s for s in plan.used if s not in unused), skipped={**plan.skipped, **unused},
+                           timings_s={"kernel": kernel_s, "total": time.perf_counter() - started})
     return EstimatorRun(states=states, diagnostics=diagnostics_frame(diag_f, diag_i, int(counters[C_DIAG])),
                         report=report)
