@@ -284,8 +284,7 @@ def moving_nis(root: str, run_id: str, estimator: str, sensor: str, window: int)
 def sensor_diagnostics(root: str, run_id: str, estimator: str, sensor: str) -> pd.DataFrame:
     """Diagnostics rows of one estimator and sensor of a stored run."""
     diagnostics = stored_run(root, run_id)[1]
-    keep = (diagnostics["estimator"].astype(str) == estimator) & (diagnostics["sensor"].astype(str) == sensor)
-    return diagnostics.loc[keep]
+    return diagnostics.loc[(diagnostics["estimator"] == estimator) & (diagnostics["sensor"] == sensor)]
 
 
 def run_calibration(root: str, sha256: str, noise: str) -> Calibration | None:

@@ -151,7 +151,7 @@ def compare(states: pd.DataFrame, log: FlightLog) -> Comparison:
     """All estimators of a run against the log's best reference (truth, else onboard)."""
     origin = gps_origin(log)
     names = [str(name) for name in states["estimator"].unique()]
-    by_name = {name: states.loc[states["estimator"].astype(str) == name] for name in names}
+    by_name = {name: states.loc[states["estimator"] == name] for name in names}
     result = {name: quantities(frame, origin) for name, frame in by_name.items()}
     time_s = result[names[0]]["time_s"].to_numpy() if names else np.empty(0)
     reference = None

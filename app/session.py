@@ -77,14 +77,20 @@ def log_picker(entries: list[LogEntry], default_sha256: str | None) -> str | Non
 
 
 @contextmanager
-def input_errors() -> Iterator[None]:
-    """Show bad user input (:class:`~ingest.errors.InputError`) as an error box and stop the page, never a
-    traceback."""
+def input_errors(*, stop: bool = True) -> Iterator[None]:
+    """Show bad user input (:class:`~ingest.errors.InputError`) as an error box, never a traceback.
+
+    Parameters
+    ----------
+    stop : bool
+        Stop the page after the message (default); otherwise skip the rest of the ``with`` block and go on.
+    """
     try:
         yield
     except InputError as exc:
         st.error(f"This file cannot be used: {exc}")
-        st.stop()
+        if stop:
+            st.stop()
 
 
 def selected_sha256() -> str | None:

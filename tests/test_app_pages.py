@@ -71,6 +71,7 @@ def test_home_upload_rejects_a_bad_file_and_stores_a_good_one(open_page, workspa
     at.run()
     assert not at.exception
     assert any("cannot be used" in error.value for error in at.error)
+    assert at.dataframe  # the page goes on: the workspace table is still shown
     assert all(entry.display_name != "notes.ulg" for entry in Workspace(workspace_dir).list_logs())
 
     small = REAL_LOGS_DIR / "sample_log_small.ulg"

@@ -14,19 +14,20 @@ st.write("Upload a PX4 ULog (and optionally the sun-device log), check its strea
 workspace = session.workspace()
 sha256 = session.selected_sha256()
 if sha256 is not None:
-    log = session.require_log()
     entry = workspace.get_log(sha256)
-    st.subheader(f"Open log: {entry.display_name if entry else log.meta.source}")
-    columns = st.columns(4)
-    columns[0].metric("Duration", tables.format_duration(log.meta.duration_s))
-    columns[1].metric("Vehicle", tables.vehicle_name(log.meta.vehicle_type).split(" (")[0])
-    columns[2].metric("Streams", len(log.meta.streams))
-    columns[3].metric("Estimator runs", len(workspace.list_runs(sha256)))
-    links = st.columns(4)
-    links[0].page_link("views/overview.py", label="Overview: streams and track", icon=":material/flight:")
-    links[1].page_link("views/calibration.py", label="Calibrate the sensors", icon=":material/tune:")
-    links[2].page_link("views/estimators.py", label="Compare the estimators", icon=":material/compare_arrows:")
-    links[3].page_link("views/sun.py", label="Sun vector", icon=":material/wb_sunny:")
+    st.subheader(f"Open log: {entry.display_name if entry else sha256[:12]}")
+    with session.input_errors(stop=False):  # an unreadable log must not hide the upload form
+        log = adapters.stored_log(session.root(), sha256)
+        columns = st.columns(4)
+        columns[0].metric("Duration", tables.format_duration(log.meta.duration_s))
+        columns[1].metric("Vehicle", tables.vehicle_name(log.meta.vehicle_type).split(" (")[0])
+        columns[2].metric("Streams", len(log.meta.streams))
+        columns[3].metric("Estimator runs", len(workspace.list_runs(sha256)))
+        links = st.columns(4)
+        links[0].page_link("views/overview.py", label="Overview: streams and track", icon=":material/flight:")
+        links[1].page_link("views/calibration.py", label="Calibrate the sensors", icon=":material/tune:")
+        links[2].page_link("views/estimators.py", label="Compare the estimators", icon=":material/compare_arrows:")
+        links[3].page_link("views/sun.py", label="Sun vector", icon=":material/wb_sunny:")
 
 st.subheader("Upload a flight")
 limit_mb = st.get_option("server.maxUploadSize")
@@ -43,13 +44,13 @@ if submitted:
         sun_csv = sun_file.getvalue() if sun_file else None
         device_json = device_file.getvalue() if device_file else None
         name = sanitize_name(ulog_file.name)
-        with session.input_errors():
+        with session.input_errors(stop=False):  # nothing is stored unless every file is usable
             adapters.validate_upload(content, name, sun_csv, device_json)
-        known = workspace.get_log(hashlib.sha256(content).hexdigest())
-        entry = workspace.add_log(content, name, sun_csv=sun_csv, device_json=device_json)
-        if known is not None:
-            st.toast(f"{name} is already in the workspace (added {known.added_utc} as {known.display_name}).")
-        session.open_log(entry.sha256)
+            known = workspace.get_log(hashlib.sha256(content).hexdigest())
+            entry = workspace.add_log(content, name, sun_csv=sun_csv, device_json=device_json)
+            if known is not None:
+                st.toast(f"{name} is already in the workspace (added {known.added_utc} as {known.display_name}).")
+            session.open_log(entry.sha256)
 
 st.subheader("Workspace")
 st.caption("Every upload is stored under its content hash; calibrations and estimator runs are stored beside it "

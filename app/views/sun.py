@@ -26,7 +26,8 @@ mounting = ", ".join(f"{a:g}" for a in device.mount_rpy_deg)
 st.caption(f"Device: side faces tilted {device.tilt_deg:g} deg at azimuths {azimuths} deg; mounted at roll, pitch, "
            f"yaw {mounting} deg.")
 
-solution = adapters.sun_solution(root, sha256)
+with session.input_errors():
+    solution = adapters.sun_solution(root, sha256)
 states = sun_compare.cell_states(solution, device)
 solved = solution["status"] == "ok"
 columns = st.columns(4)
