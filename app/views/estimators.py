@@ -89,7 +89,10 @@ def state_plots() -> None:
     panel = st.segmented_control("Show", [*PANELS, "Track", "Errors"], default="Attitude", key="est_panel")
     if panel == "Track":
         tracks = {name: frame for name, frame in result.quantities.items() if frame["north_m"].notna().any()}
-        st.plotly_chart(figures.track_figure(tracks), key="est_track")
+        if tracks:
+            st.plotly_chart(figures.track_figure(tracks), key="est_track")
+        else:
+            st.info("No position to draw: the log has no GPS fix (the local NED origin).")
     elif panel == "Errors":
         if not result.errors:
             st.info("No reference to compute errors against.")
