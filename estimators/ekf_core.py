@@ -246,6 +246,26 @@ def limit_variances(P, min_var, max_var):
 
 
 @njit(cache=True)
+def cholesky_lower(M, L, n, pivot_floor):
+    """Lower Cholesky factor of the leading ``n x n`` block of the symmetric ``M`` into the lower triangle of
+    ``L`` (the rest of ``L`` is not written). Returns False as soon as a pivot is not above ``pivot_floor`` (not
+    positive definite, or not finite); ``L`` is then partly written."""
+    for j in range(n):
+        d = M[j, j]
+        for k in range(j):
+            d -= L[j, k] * L[j, k]
+        if not d > pivot_floor:
+            return False
+        L[j, j] = math.sqrt(d)
+        for i in range(j + 1, n):
+            v = M[i, j]
+            for k in range(j):
+                v -= L[i, k] * L[j, k]
+            L[i, j] = v / L[j, j]
+    return True
+
+
+@njit(cache=True)
 def repair_covariance(P, min_var, max_var, work, eig_floor):
     """Keep ``P`` a usable covariance; returns True when an eigenvalue repair was needed.
 
@@ -270,21 +290,7 @@ def repair_covariance(P, min_var, max_var, work, eig_floor):
         for j in range(n):
             if not math.isfinite(P[i, j]):
                 return False
-    # Cholesky test
-    for j in range(n):
-        s = P[j, j]
-        for k in range(j):
-            s -= work[j, k] * work[j, k]
-        if not (s > 0.0):
-            break
-        d = math.sqrt(s)
-        work[j, j] = d
-        for i in range(j + 1, n):
-            t = P[i, j]
-            for k in range(j):
-                t -= work[i, k] * work[j, k]
-            work[i, j] = t / d
-    else:
+    if cholesky_lower(P, work, n, 0.0):
         return False
     values, vectors = np.linalg.eigh(P)
     for k in range(n):
@@ -477,6 +483,25 @@ def gps_reset_due(mon, position, t, reject_s, outage_s):
         mon[GM_STREAK + c] = math.inf
     mon[other_pending] = 1.0
     return True, True
+
+
+@njit(cache=True)
+def transform_covariance(P, T, work):
+    """``P <- T P T^T`` for a linear change of the error state ``e' = T e`` (dense; ``work`` (n, n) scratch)."""
+    n = P.shape[0]
+    for i in range(n):
+        for j in range(n):
+            s = 0.0
+            for k in range(n):
+                s += T[i, k] * P[k, j]
+            work[i, j] = s
+    for i in range(n):
+        for j in range(i, n):
+            s = 0.0
+            for k in range(n):
+                s += work[i, k] * T[j, k]
+            P[i, j] = s
+            P[j, i] = s
 
 
 @njit(cache=True)

@@ -180,6 +180,33 @@ def inject(x, dx, P):
     return out, G @ P @ G.T
 
 
+def reset_to_gps(x, P, kind, values, variances, field, lever, gyro, sel, move_wind):
+    """The nominal position or velocity to the GPS (lever arm included), the block's error the GPS noise; with
+    ``move_wind`` the wind moves with the velocity (north, east): ``e' = T e + G n``, ``P' = T P T^T + G R G^T``
+    over the active error states ``sel`` (position and velocity lead them)."""
+    x, P = x.copy(), P.copy()
+    rows = [h_and_H(x, kind, c, values, field, lever, gyro) for c in range(3)]
+    correction = values[0:3] - np.array([h for h, _ in rows])
+    if kind == GPS_POS:
+        x[P_] += correction
+        P[DP, :] = 0.0
+        P[:, DP] = 0.0
+        P[DP, DP] = np.diag(variances[0:3])
+        return x, P
+    n = len(sel)
+    T, G = np.eye(n), np.zeros((n, 3))
+    x[V_] += correction
+    T[DV] = 0.0
+    G[DV] = np.eye(3)
+    if move_wind:
+        aw = int(np.flatnonzero(sel == m.E_W)[0])
+        x[W_] += correction[:2]
+        for c in range(2):
+            T[aw + c] -= rows[c][1][sel]
+            G[aw + c, c] = 1.0
+    return x, T @ P @ T.T + G @ np.diag(variances[0:3]) @ G.T
+
+
 def run_reference(imu_t, imu_gyro, imu_accel, ev_t, ev_kind, ev_imu, ev_val, ev_var, x0, P0, sel, params, gates,
                   rw_psd, min_var, max_var, out_f, out_sd, diag_f, diag_i, counters):
     """Same signature and outputs as :func:`estimators.full_state_indirect.run_kernel`."""
@@ -209,6 +236,7 @@ def run_reference(imu_t, imu_gyro, imu_accel, ev_t, ev_kind, ev_imu, ev_val, ev_
             counters[C_RESETS] += 1
 
     gps = GpsMonitor(params[P_GPS_REJECT_S], params[P_GPS_OUTAGE_S])
+    air_ok = False  # the last airspeed update was accepted
     n_out, t, j = 0, imu_t[0], 0
     for k in range(len(imu_t)):
         gyro, accel = imu_gyro[k], imu_accel[k]
@@ -244,11 +272,8 @@ def run_reference(imu_t, imu_gyro, imu_accel, ev_t, ev_kind, ev_imu, ev_val, ev_
             if kind in (GPS_POS, GPS_VEL):
                 reset, counted = gps.reset_due(kind, t)
                 if reset:
-                    nominal, error = (P_, DP) if kind == GPS_POS else (V_, DV)
-                    x[nominal] += values[0:3] - [h_and_H(x, kind, c, values, field, lever, gyro)[0] for c in range(3)]
-                    P[error, :] = 0.0
-                    P[:, error] = 0.0
-                    P[error, error] = np.diag(ev_var[j, 0:3])
+                    x, P = reset_to_gps(x, P, kind, values, ev_var[j], field, lever, gyro, sel,
+                                        air_ok and m.E_W in sel)
                     counters[C_GPS_RESETS] += counted
                     j += 1
                     continue
@@ -272,6 +297,8 @@ def run_reference(imu_t, imu_gyro, imu_accel, ev_t, ev_kind, ev_imu, ev_val, ev_
                 record(diag_f, diag_i, counters, t, kind, c, nu, s_var, nis, accepted)
                 if kind in (GPS_POS, GPS_VEL):
                     gps.record(kind, c, t, accepted)
+                elif kind == AIRSPEED:
+                    air_ok = accepted
                 if accepted:
                     any_accepted = True
                     dx[sel] += dx_r

@@ -581,7 +581,7 @@ def run_kernel(imu_t, imu_gyro, imu_accel, ev_t, ev_kind, ev_imu, ev_val, ev_var
     paper_indirect = params[P_PAPER_INDIRECT] > 0.5
     vmin = params[P_VMIN]
     gps_mon = ekf_core.gps_monitor()
-    block3 = np.empty((3, 3))
+    air_ok = False  # the last airspeed update was accepted (reset_to_gps)
     n_out = 0
     t = imu_t[0]
     j = 0
@@ -641,7 +641,8 @@ def run_kernel(imu_t, imu_gyro, imu_accel, ev_t, ev_kind, ev_imu, ev_val, ev_var
                 reset, counted = ekf_core.gps_reset_due(gps_mon, kind == GPS_POS, t, params[P_GPS_REJECT_S],
                                                         params[P_GPS_OUTAGE_S])
                 if reset:
-                    reset_to_gps(x, P, kind, values, ev_var[j], R, S, W, block3)
+                    reset_to_gps(x, P, kind, values, ev_var[j], layout, air_ok and layout[L_W] >= 0, R, S, W, H,
+                                 F, work)
                     if counted:
                         counters[C_GPS_RESETS] += 1
                     j += 1
@@ -679,6 +680,8 @@ def run_kernel(imu_t, imu_gyro, imu_accel, ev_t, ev_kind, ev_imu, ev_val, ev_var
                 ekf_core.record_update(diag_f, diag_i, counters, t, kind, c, nu, s_var, nis, accepted)
                 if is_gps:
                     ekf_core.gps_record(gps_mon, kind == GPS_POS, c, t, accepted)
+                elif kind == AIRSPEED:
+                    air_ok = accepted
                 if accepted:
                     if paper_indirect:
                         for i in range(n):
@@ -702,25 +705,66 @@ def run_kernel(imu_t, imu_gyro, imu_accel, ev_t, ev_kind, ev_imu, ev_val, ev_var
 
 
 @njit(cache=True)
-def reset_to_gps(x, P, kind, values, variances, R, S, W, block):
-    """GPS re-acquisition (math note 2.3): the position (``kind == GPS_POS``) or the body velocity to the GPS
-    value, their covariance to the GPS R (the velocity's rotated into body axes, ``R_nb^T diag(var) R_nb``) and
-    no correlation with the other states. ``block`` (3, 3) scratch."""
+def reset_to_gps(x, P, kind, values, variances, layout, move_wind, R, S, W, H, T, work):
+    """GPS re-acquisition (math note 2.3): the position (``kind == GPS_POS``) or the velocity to the GPS value.
+
+    Position: ``p = z``, covariance ``diag(R_gps)``, no correlation with the other states.
+
+    Velocity: the NED velocity becomes the GPS value ``v``, its error the GPS noise, uncorrelated with the other
+    states; the body state is ``V = R_nb^T v``, so ``dV = R_nb^T dv + J dTheta`` with ``J = [V]x W`` (math note
+    1.1; zeroing the body-axis cross-covariances instead would correlate the NED velocity with the attitude).
+    ``move_wind`` (wind states present and the last airspeed update accepted, i.e. the filter's air-relative
+    velocity agrees with the airspeed): the wind moves with the ground velocity, ``w += v - R_nb V_old`` (north,
+    east), so the air-relative velocity is kept; otherwise the wind, fitted to the rejected velocity, would make
+    the airspeed updates fail after the reset. The covariance follows the same linear map,
+    ``e' = T e + G n``: ``P <- T P T^T + G R_gps G^T``.
+
+    ``layout`` as :func:`layout_of`; ``H`` (n,), ``T`` and ``work`` (n, n) scratch.
+    """
+    n = x.shape[0]
     if kind == GPS_POS:
         for a in range(3):
             x[I_P + a] = values[a]
             for b in range(3):
-                block[a, b] = 0.0
-            block[a, a] = variances[a]
-        ekf_core.reset_covariance_block(P, I_P, block)
+                work[a, b] = 0.0
+            work[a, a] = variances[a]
+        ekf_core.reset_covariance_block(P, I_P, work[:3, :3].copy())
         return
+    for i in range(n):
+        for k in range(n):
+            T[i, k] = 0.0
+        T[i, i] = 1.0
+    iw = layout[L_W]
+    if move_wind:
+        for c in range(2):
+            h = measurement(x, GPS_VEL, c, values, values, layout, R, S, W, H)
+            x[iw + c] += values[c] - h
+            for k in range(n):
+                T[iw + c, k] -= H[k]
     euler_matrices(x[6], x[7], x[8], R, S, W)
     for a in range(3):
         x[I_V + a] = R[0, a] * values[0] + R[1, a] * values[1] + R[2, a] * values[2]
+    u, v, w = x[I_V], x[I_V + 1], x[I_V + 2]
+    for a in range(3):
+        for k in range(n):
+            T[I_V + a, k] = 0.0
+    for t in range(3):  # J = [V]x W
+        T[I_V, I_TH + t] = -w * W[1, t] + v * W[2, t]
+        T[I_V + 1, I_TH + t] = w * W[0, t] - u * W[2, t]
+        T[I_V + 2, I_TH + t] = -v * W[0, t] + u * W[1, t]
+    ekf_core.transform_covariance(P, T, work)
+    # + G R_gps G^T, G = [R_nb^T on V; I (north, east) on the moved wind]
+    for a in range(3):
         for b in range(3):
-            block[a, b] = (R[0, a] * variances[0] * R[0, b] + R[1, a] * variances[1] * R[1, b]
-                           + R[2, a] * variances[2] * R[2, b])
-    ekf_core.reset_covariance_block(P, I_V, block)
+            P[I_V + a, I_V + b] += (R[0, a] * variances[0] * R[0, b] + R[1, a] * variances[1] * R[1, b]
+                                    + R[2, a] * variances[2] * R[2, b])
+        if move_wind:
+            for c in range(2):
+                P[I_V + a, iw + c] += R[c, a] * variances[c]
+                P[iw + c, I_V + a] += R[c, a] * variances[c]
+    if move_wind:
+        for c in range(2):
+            P[iw + c, iw + c] += variances[c]
 
 
 @njit(cache=True)

@@ -292,19 +292,33 @@ class GpsMonitor:
         return True, True
 
 
-def reset_to_gps(x, P, kind, values, variances):
-    """Position, or body velocity ``R^T v_gps``, to the GPS; covariance block to R (rotated), uncorrelated."""
+def reset_to_gps(x, P, kind, values, variances, layout, move_wind):
+    """Position, or NED velocity (body state ``V = R^T v_gps``), to the GPS: the new error is the GPS noise,
+    uncorrelated with the other states (in body axes ``dV = R^T dv + [V]x W dTheta``); with ``move_wind`` the
+    wind moves with the ground velocity (``w += v_gps - R V_old``, north and east), keeping the air-relative
+    velocity. ``e' = T e + G n``, ``P' = T P T^T + G R G^T``."""
     x, P = x.copy(), P.copy()
     if kind == GPS_POS:
-        block, value, cov = slice(0, 3), values[0:3], np.diag(variances[0:3])
-    else:
-        R, _, _ = euler_matrices(x[6:9])
-        block, value, cov = slice(3, 6), R.T @ values[0:3], R.T @ np.diag(variances[0:3]) @ R
-    x[block] = value
-    P[block, :] = 0.0
-    P[:, block] = 0.0
-    P[block, block] = cov
-    return x, P
+        x[0:3] = values[0:3]
+        P[0:3, :] = 0.0
+        P[:, 0:3] = 0.0
+        P[0:3, 0:3] = np.diag(variances[0:3])
+        return x, P
+    n = len(x)
+    T, G = np.eye(n), np.zeros((n, 3))
+    iw = layout[L_W]
+    if move_wind:
+        for c in range(2):
+            h, H = h_and_H(x, GPS_VEL, c, values, values, layout)
+            x[iw + c] += values[c] - h
+            T[iw + c] -= H
+            G[iw + c, c] = 1.0
+    R, _, W = euler_matrices(x[6:9])
+    x[3:6] = R.T @ values[0:3]
+    T[3:6, :] = 0.0
+    T[3:6, 6:9] = skew(x[3:6]) @ W
+    G[3:6] = R.T
+    return x, T @ P @ T.T + G @ np.diag(variances[0:3]) @ G.T
 
 
 def run_reference(imu_t, imu_gyro, imu_accel, ev_t, ev_kind, ev_imu, ev_val, ev_var, x0, P0, layout, params,
@@ -334,6 +348,7 @@ def run_reference(imu_t, imu_gyro, imu_accel, ev_t, ev_kind, ev_imu, ev_val, ev_
             counters[C_RESETS] += 1
 
     gps = GpsMonitor(params[P_GPS_REJECT_S], params[P_GPS_OUTAGE_S])
+    air_ok = False  # the last airspeed update was accepted
     n_out, t, j = 0, imu_t[0], 0
     for k in range(len(imu_t)):
         gyro, accel = imu_gyro[k], imu_accel[k]
@@ -371,7 +386,7 @@ def run_reference(imu_t, imu_gyro, imu_accel, ev_t, ev_kind, ev_imu, ev_val, ev_
             if kind in (GPS_POS, GPS_VEL):
                 reset, counted = gps.reset_due(kind, t)
                 if reset:
-                    x, P = reset_to_gps(x, P, kind, values, ev_var[j])
+                    x, P = reset_to_gps(x, P, kind, values, ev_var[j], layout, air_ok and layout[L_W] >= 0)
                     counters[C_GPS_RESETS] += counted
                     j += 1
                     continue
@@ -395,6 +410,8 @@ def run_reference(imu_t, imu_gyro, imu_accel, ev_t, ev_kind, ev_imu, ev_val, ev_
                 record(diag_f, diag_i, counters, t, kind, c, nu, s_var, nis, accepted)
                 if kind in (GPS_POS, GPS_VEL):
                     gps.record(kind, c, t, accepted)
+                elif kind == AIRSPEED:
+                    air_ok = accepted
                 if accepted:
                     if paper_indirect:
                         x_err = x_err + dx

@@ -228,19 +228,51 @@ def _flush_covariance(P, x_cov, acc, imu_psd, rw_psd, sel, min_var, max_var, mea
 
 
 @njit(cache=True)
-def reset_to_gps(x, P, kind, values, variances, field, lever_b, gyro, H, block):
+def reset_to_gps(x, P, kind, values, variances, field, lever_b, gyro, sel, move_wind, H, block, T, work):
     """GPS re-acquisition (math note 2.3): the nominal position (``kind == GPS_POS``) or velocity so that the
-    predicted GPS measurement (lever arm included) equals the GPS value, the error covariance of that block to
-    the GPS R and no correlation with the other error states. The position and velocity error states lead the
-    active states (indices ``E_P``, ``E_V``). ``H`` (NE,) and ``block`` (3, 3) scratch."""
-    first = m.E_P if kind == GPS_POS else m.E_V
-    nominal = m.X_P if kind == GPS_POS else m.X_V
-    for a in range(3):
-        x[nominal + a] += values[a] - measurement(x, kind, a, values, field, lever_b, gyro, H)
-        for b in range(3):
-            block[a, b] = 0.0
-        block[a, a] = variances[a]
-    ekf_core.reset_covariance_block(P, first, block)
+    predicted GPS measurement (lever arm included) equals the GPS value; the error of that block becomes the GPS
+    noise: covariance R, uncorrelated with the other error states. The position and velocity error states lead
+    the active states ``sel`` (indices ``E_P``, ``E_V``).
+
+    ``move_wind`` (wind states active and the last airspeed update accepted): the wind moves with the ground
+    velocity, ``w += v - h_v(x_old)`` (north, east), keeping the air-relative velocity the airspeed agreed with
+    (as :func:`estimators.full_state_direct.reset_to_gps`); then ``e' = T e + G n``, ``P <- T P T^T + G R G^T``.
+    ``H`` (NE,), ``block`` (3, 3), ``T`` and ``work`` (n, n) scratch.
+    """
+    if kind == GPS_POS:
+        for a in range(3):
+            x[m.X_P + a] += values[a] - measurement(x, kind, a, values, field, lever_b, gyro, H)
+            for b in range(3):
+                block[a, b] = 0.0
+            block[a, a] = variances[a]
+        ekf_core.reset_covariance_block(P, m.E_P, block)
+        return
+    n = sel.shape[0]
+    aw = -1
+    for a in range(n):
+        if sel[a] == m.E_W:
+            aw = a
+    for i in range(n):
+        for k in range(n):
+            T[i, k] = 0.0
+        T[i, i] = 1.0
+    for c in range(3):
+        dv = values[c] - measurement(x, kind, c, values, field, lever_b, gyro, H)
+        if move_wind and c < 2:
+            x[m.X_W + c] += dv
+            for k in range(n):
+                T[aw + c, k] -= H[sel[k]]
+        x[m.X_V + c] += dv
+    for c in range(3):
+        for k in range(n):
+            T[m.E_V + c, k] = 0.0
+    ekf_core.transform_covariance(P, T, work)
+    for c in range(3):
+        P[m.E_V + c, m.E_V + c] += variances[c]
+        if move_wind and c < 2:
+            P[aw + c, aw + c] += variances[c]
+            P[aw + c, m.E_V + c] += variances[c]
+            P[m.E_V + c, aw + c] += variances[c]
 
 
 @njit(cache=True)
@@ -331,6 +363,11 @@ def run_kernel(imu_t, imu_gyro, imu_accel, ev_t, ev_kind, ev_imu, ev_val, ev_var
     inject_scalar = params[P_INJECT_SCALAR] > 0.5
     vmin = params[P_VMIN]
     gps_mon = ekf_core.gps_monitor()
+    air_ok = False  # the last airspeed update was accepted (reset_to_gps)
+    wind_active = False
+    for a in range(n):
+        if sel[a] == m.E_W:
+            wind_active = True
     block3 = np.empty((3, 3))
     n_out = 0
     t = imu_t[0]
@@ -384,7 +421,8 @@ def run_kernel(imu_t, imu_gyro, imu_accel, ev_t, ev_kind, ev_imu, ev_val, ev_var
                 reset, counted = ekf_core.gps_reset_due(gps_mon, kind == GPS_POS, t, params[P_GPS_REJECT_S],
                                                         params[P_GPS_OUTAGE_S])
                 if reset:
-                    reset_to_gps(x, P, kind, values, ev_var[j], field, lever, gyro, H_full, block3)
+                    reset_to_gps(x, P, kind, values, ev_var[j], field, lever, gyro, sel, air_ok and wind_active,
+                                 H_full, block3, F, work)
                     if counted:
                         counters[C_GPS_RESETS] += 1
                     j += 1
@@ -418,6 +456,8 @@ def run_kernel(imu_t, imu_gyro, imu_accel, ev_t, ev_kind, ev_imu, ev_val, ev_var
                 ekf_core.record_update(diag_f, diag_i, counters, t, kind, c, nu, s_var, nis, accepted)
                 if is_gps:
                     ekf_core.gps_record(gps_mon, kind == GPS_POS, c, t, accepted)
+                elif kind == AIRSPEED:
+                    air_ok = accepted
                 if accepted:
                     any_accepted = True
                     for a in range(n):

@@ -53,6 +53,7 @@ import numpy as np
 import pandas as pd
 from numba import njit
 
+from estimators.ekf_core import cholesky_lower
 from ingest.errors import InputError
 from ingest.flightlog import STREAM_COLUMNS
 from ingest.sun_device import N_CELLS, SunDevice
@@ -310,18 +311,8 @@ def _spd_inverse(mat, n):
     scale = 0.0
     for i in range(n):
         scale = max(scale, m[i, i])
-    for j in range(n):
-        diag = m[j, j]
-        for p in range(j):
-            diag -= low[j, p] * low[j, p]
-        if diag <= 1e-12 * scale:
-            return False
-        low[j, j] = np.sqrt(diag)
-        for i in range(j + 1, n):
-            value = m[i, j]
-            for p in range(j):
-                value -= low[i, p] * low[j, p]
-            low[i, j] = value / low[j, j]
+    if not cholesky_lower(m, low, n, 1e-12 * scale):
+        return False
     for j in range(n):
         low_inv[j, j] = 1.0 / low[j, j]
         for i in range(j + 1, n):

@@ -349,19 +349,8 @@ def _cholesky_lower(M):
     """Lower Cholesky factor of a small symmetric positive-definite matrix (NaN when it is not)."""
     m = M.shape[0]
     L = np.zeros((m, m))
-    for j in range(m):
-        d = M[j, j]
-        for k in range(j):
-            d -= L[j, k] * L[j, k]
-        if not d > 0.0:
-            L[:, :] = math.nan
-            return L
-        L[j, j] = math.sqrt(d)
-        for i in range(j + 1, m):
-            v = M[i, j]
-            for k in range(j):
-                v -= L[i, k] * L[j, k]
-            L[i, j] = v / L[j, j]
+    if not ekf_core.cholesky_lower(M, L, m, 0.0):
+        L[:, :] = math.nan
     return L
 
 

@@ -2,14 +2,16 @@
 velocity component rejected continuously for T_rej, or GPS back after an outage longer than T_out, resets the
 position AND the velocity states to the GPS (variances to R, cross-covariances zeroed) and counts a reset event.
 
-Scenarios on the exact synthetic flight (GPS sigma 0.5 m per axis): a bad start (yaw 61 deg and velocity 4 m/s
-off after a 30 s still phase, the case that left GPS north rejected for the rest of the flight), a GPS north
-step (north alone rejected: the old all-components rule never fired), an outage longer and shorter than T_out;
-the rule itself on hand-made event sequences, kernel against NumPy twin with resets happening."""
+Scenarios: a bad start on the simulated paper mission (yaw 61 deg and velocity 4 m/s off at the alignment, the
+case that left GPS north and east rejected for the rest of the flight); on the exact synthetic flight (GPS sigma
+0.5 m per axis) a GPS north step (north alone rejected: the old all-components rule never fired) and outages
+longer and shorter than T_out; the rule itself on hand-made event sequences; kernel against NumPy twin with
+resets happening."""
 
 from __future__ import annotations
 
 import dataclasses
+import json
 import math
 
 import numpy as np
@@ -20,9 +22,12 @@ from estimators import full_state_direct as fsd
 from estimators import full_state_indirect as fsi
 from estimators import three_stage as ts
 from estimators.config import EstimatorConfig
+from estimators.evaluation import config_for_simulation, rms_errors
 from estimators.events import GPS_POS, GPS_VEL
 from estimators.full_state_direct_numpy import GpsMonitor
 from ingest.flightlog import FlightLog
+from ingest.ulog_reader import load_flight_log
+from tests.conftest import SAMPLE_LOGS_DIR
 from tests.estimators_synthetic import ALT0, LAT0, LON0, synthetic_flight
 
 RUNNERS = {"three_stage": ts.run, "full_state_direct": fsd.run, "full_state_indirect": fsi.run}
@@ -30,6 +35,9 @@ RUNNERS = {"three_stage": ts.run, "full_state_direct": fsd.run, "full_state_indi
 GPS_SIGMA_M = 0.5
 #: "Within a few GPS sigma": the horizontal position RMS bar after recovery [m].
 RECOVERED_RMS_M = 3.0 * GPS_SIGMA_M
+#: On the simulated paper mission the bar is this factor times the RMS of the simulated GPS error (as the Table 2
+#: tests: its slowly varying part is unobservable).
+GPS_FLOOR_FACTOR = 1.1
 T_REJ_S = EstimatorConfig().timing.gps_reset_after_s
 T_OUT_S = EstimatorConfig().timing.gps_outage_reset_s
 
@@ -131,28 +139,33 @@ def test_reset_covariance_block():
 
 
 @pytest.fixture(scope="module")
-def bad_start():
-    """120 s: 30 s still on the ground, then flight; the alignment's yaw 61 deg and velocity 4 m/s off."""
-    log = synthetic_flight(120.0, seed=3, still_s=30.0, turn_rate_deg_s=6.0)
-    config = EstimatorConfig()
+def paper_bad_start():
+    """The bundled simulated paper mission (60 s still on the ground from 20 s, first GPS fix at 26 s, hand
+    launch at 80 s) with the alignment's yaw 61 deg and velocity 4 m/s off, and the true noise settings."""
+    log = load_flight_log(SAMPLE_LOGS_DIR / "paper.ulg")
+    sidecar = json.loads((SAMPLE_LOGS_DIR / "paper_sim.json").read_text())
+    config = config_for_simulation(sidecar)
     inputs = events.build_replay_inputs(log, config)
     align = inputs.alignment
     wrong = dataclasses.replace(align, yaw_rad=align.yaw_rad + math.radians(61.0),
                                 velocity_ned_m_s=align.velocity_ned_m_s + np.array([4.0, -4.0, 0.0]))
-    return log, config, dataclasses.replace(inputs, alignment=wrong)
+    return log, sidecar, config, dataclasses.replace(inputs, alignment=wrong)
 
 
 @pytest.mark.parametrize("name", RUNNERS)
-def test_recovers_from_a_large_yaw_and_velocity_error(bad_start, name):
-    log, config, inputs = bad_start
+def test_recovers_from_a_large_yaw_and_velocity_error(paper_bad_start, name):
+    """With the old rule (reset only when every component of a fix was rejected) GPS north and east stayed
+    rejected after the launch while down was accepted: position RMS 32 m (direct), 18 m (indirect), 8.7 m
+    (three-stage). Now one reset, then the position error is the GPS's own (the bar of the Table 2 tests: 1.1 x
+    the RMS of the simulated GPS error, whose Gauss-Markov part no filter can remove)."""
+    log, sidecar, config, inputs = paper_bad_start
     run = RUNNERS[name](log, inputs, config)
-    t, err = _horizontal_error(log, run.states)
-    recovered = _rms(err[t >= 90.0])
-    print(f"{name}: {run.report.gps_resets} GPS resets, position RMS after 90 s {recovered:.2f} m, "
-          f"max {np.nanmax(err):.1f} m")
-    assert recovered < RECOVERED_RMS_M
-    if name != "three_stage":  # its navigation stage starts at the first GPS epoch in flight, velocity from GPS
-        assert run.report.gps_resets >= 1
+    rms = rms_errors(run.states, log, after_s=60.0).iloc[0]
+    bar = GPS_FLOOR_FACTOR * sidecar["sensor_errors"]["gps"]["position_error_rms_horizontal_m"]
+    print(f"{name}: {run.report.gps_resets} GPS resets, position RMS after 60 s {rms['position_m']:.2f} m "
+          f"(bar {bar:.2f} m), yaw RMS {rms['yaw_deg']:.1f} deg")
+    assert run.report.gps_resets >= 1
+    assert rms["position_m"] < bar
 
 
 @pytest.mark.parametrize("name", RUNNERS)
