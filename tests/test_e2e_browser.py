@@ -117,10 +117,10 @@ def _open(page, title: str) -> None:
 def test_upload_run_and_compare_in_a_browser(page):
     page.locator("[data-testid='stMain'] h1", has_text="solarnav").wait_for()
     _settle(page)
-    uploads = page.locator("[data-testid='stFileUploader'] input[type='file']")
-    uploads.nth(0).set_input_files(str(SAMPLE_DIR / f"{SAMPLE}.ulg"))
-    uploads.nth(1).set_input_files(str(SAMPLE_DIR / f"{SAMPLE}_sun.csv"))
-    uploads.nth(2).set_input_files(str(SAMPLE_DIR / f"{SAMPLE}_device.json"))
+    uploaders = page.locator("[data-testid='stFileUploader']")
+    for k, name in enumerate((f"{SAMPLE}.ulg", f"{SAMPLE}_sun.csv", f"{SAMPLE}_device.json")):
+        uploaders.nth(k).locator("input[type='file']").set_input_files(str(SAMPLE_DIR / name))
+        uploaders.nth(k).locator("[data-testid='stFileChipDeleteBtn']").wait_for()  # the upload has finished
     page.get_by_role("button", name="Add to the workspace").click()
     page.wait_for_function("() => document.querySelector('input[aria-label=\"Flight log\"]')"
                            f".value.startsWith('{SAMPLE}.ulg')", timeout=SLOW_MS)
