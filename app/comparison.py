@@ -188,13 +188,15 @@ def nis_summary(diagnostics: pd.DataFrame) -> pd.DataFrame:
     """Per estimator and sensor: updates, share accepted, mean NIS and the share of single NIS values inside the
     95 % chi-square(1) bound (0.95 for a consistent filter)."""
     bound = float(stats.chi2.ppf(NIS_BAND_PROBABILITY, 1))
-    frame = diagnostics.assign(inside=diagnostics["nis"] <= bound,
-                               accepted=diagnostics["accepted"].astype(bool),
-                               estimator=diagnostics["estimator"].astype(str))
-    grouped = frame.groupby(["estimator", "sensor"], sort=False)
+    nis = diagnostics["nis"].to_numpy(float)
+    frame = pd.DataFrame({"estimator": diagnostics["estimator"].astype("category"),
+                          "sensor": diagnostics["sensor"].astype("category"), "nis": nis, "inside": nis <= bound,
+                          "accepted": diagnostics["accepted"].to_numpy(dtype=bool)})
+    grouped = frame.groupby(["estimator", "sensor"], sort=False, observed=True)
     return pd.DataFrame({"updates": grouped.size(), "accepted [%]": 100.0 * grouped["accepted"].mean(),
                          "mean NIS [-]": grouped["nis"].mean(),
-                         "inside 95 % bound [%]": 100.0 * grouped["inside"].mean()}).reset_index()
+                         "inside 95 % bound [%]": 100.0 * grouped["inside"].mean()}).reset_index().astype(
+                             {"estimator": str, "sensor": str})
 
 
 #: Unit of the innovations of each sensor (normalised vectors are dimensionless); exceptions per component below.

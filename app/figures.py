@@ -288,10 +288,11 @@ def innovation_figure(diagnostics: pd.DataFrame, units: Mapping[str, str], *, ti
     units : mapping of component -> str
         Unit of each component's innovation.
     """
-    components = list(dict.fromkeys(diagnostics["component"].astype(str)))
+    parts = [(str(component), part) for component, part
+             in diagnostics.groupby("component", sort=False, observed=True)]
+    components = [component for component, _ in parts]
     fig = make_subplots(rows=max(1, len(components)), cols=1, shared_xaxes=True, vertical_spacing=0.04)
-    for row, component in enumerate(components, start=1):
-        part = diagnostics.loc[diagnostics["component"].astype(str) == component]
+    for row, (_, part) in enumerate(parts, start=1):
         time_s = part["time_s"].to_numpy(float)
         bound = 2.0 * np.sqrt(part["innovation_var"].to_numpy(float))
         first = row == 1
@@ -301,7 +302,7 @@ def innovation_figure(diagnostics: pd.DataFrame, units: Mapping[str, str], *, ti
                            legendgroup="bound", showlegend=False), row=row, col=1)
         fig.add_trace(line(time_s, part["innovation"].to_numpy(float), "innovation", max_points=max_points,
                            color="#1f77b4", legendgroup="innovation", showlegend=first), row=row, col=1)
-        rejected = part.loc[~part["accepted"].astype(bool)]
+        rejected = part.loc[~part["accepted"].to_numpy(dtype=bool)]
         if len(rejected):
             step = max(1, int(np.ceil(len(rejected) / max_points)))
             fig.add_trace(go.Scatter(x=rejected["time_s"].iloc[::step], y=rejected["innovation"].iloc[::step],

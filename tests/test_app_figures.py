@@ -9,7 +9,7 @@ import pytest
 
 from app import figures, tables
 from calib.segments import Segment
-from ingest.flightlog import LogMetadata, StreamInfo
+from ingest.flightlog import FlightLog, LogMetadata, StreamInfo
 
 RATE_HZ = 250.0
 
@@ -180,3 +180,34 @@ def test_cell_state_figure_keeps_short_faults_when_binning():
     assert np.asarray(heatmap.z).shape == (7, 1000) and np.asarray(heatmap.z)[1].max() == 2
     assert list(heatmap.y) == [f"cell {k}" for k in range(1, 8)]
     assert fig.layout.yaxis.title.text == "photocell" and fig.layout.xaxis.title.text == figures.TIME_TITLE
+
+
+def test_missing_streams_are_explained_and_runs_listed():
+    from app.workspace import LogEntry
+
+    meta = LogMetadata(source="x.ulg", vehicle_type=1)
+    log = FlightLog(streams={"imu": pd.DataFrame({"gyro_x_rad_s": [0.0]})}, meta=meta)
+    missing = tables.missing_streams(log)
+    assert {"mag", "gps", "airspeed", "sun"} <= set(missing["stream"]) and "imu" not in set(missing["stream"])
+    assert missing["consequence"].str.len().min() > 10
+    log.meta.vehicle_type = 2  # a quadrotor needs no airspeed sensor
+    assert "airspeed" not in set(tables.missing_streams(log)["stream"])
+
+    entries = [LogEntry("a" * 64, "flight.ulg", 2_000_000, "2026-01-01T00:00:00+00:00", True)]
+    runs = pd.DataFrame({"run_id": ["r1"], "log_sha256": ["a" * 64], "created_utc": ["2026-01-01T00:01:00+00:00"],
+                         "settings_json": ['{"estimators": ["three_stage"], "heading": "mag", "noise": "default"}']})
+    assert tables.logs_table(entries, runs).loc[0, "runs"] == 1
+    listed = tables.runs_table(runs, entries)
+    assert listed.loc[0, "log"] == "flight.ulg" and listed.loc[0, "estimators"] == "three_stage"
+
+
+def test_workspace_root_from_arguments_environment_or_default(monkeypatch, tmp_path):
+    from app import session
+
+    monkeypatch.delenv(session.WORKSPACE_ENV, raising=False)
+    assert session.workspace_root(["--workspace", str(tmp_path / "a")]) == tmp_path / "a"
+    monkeypatch.setenv(session.WORKSPACE_ENV, str(tmp_path / "b"))
+    assert session.workspace_root([]) == tmp_path / "b"
+    monkeypatch.delenv(session.WORKSPACE_ENV)
+    monkeypatch.chdir(tmp_path)
+    assert session.workspace_root(["--other", "x"]) == tmp_path / "workspace"

@@ -108,12 +108,14 @@ def test_calibration_tables_tau_and_window(open_page):
     assert any("Gyroscope (deg/s)" in column for column in table4.columns)
     [noise] = _frames(at, lambda v: "segment_end_s" in v.columns)
     assert {"accelerometer", "gyroscope"} <= set(noise["sensor"])
+    at.segmented_control(key="calib_section").set_value("R matrices and tau").run()
     is_r = lambda v: list(v.index) == ["x", "y", "z"] and list(v.columns) == ["x", "y", "z"]  # noqa: E731
     r_before = _frames(at, is_r)[0].to_numpy(dtype=float)  # accelerometer first
     at.select_slider(key="calib_tau").set_value(10.0).run()
     assert not at.exception
     r_after = _frames(at, is_r)[0].to_numpy(dtype=float)
     assert r_after[1, 1] == pytest.approx(10.0 * r_before[1, 1]) and r_after[0, 0] == pytest.approx(r_before[0, 0])
+    at.segmented_control(key="calib_section").set_value("Noise and bias (Table 4)").run()
 
     at.radio(key="calib_mode").set_value("window").run()
     low, high = at.slider(key="calib_window").value
@@ -124,6 +126,7 @@ def test_calibration_tables_tau_and_window(open_page):
     assert {button.label for button in at.get("download_button")} == {"Download CALIB.json",
                                                                        "Download PX4 .params"}
 
+    at.segmented_control(key="calib_section").set_value("R matrices and tau").run()
     at.radio(key="calib_tau_mode").set_value("likelihood").run()  # replays the three-stage filter per tau
     assert not at.exception and not at.error
     assert any(caption.value.startswith("tau = ") for caption in at.caption)

@@ -131,7 +131,7 @@ def test_upload_run_and_compare_in_a_browser(page):
     assert page.locator("[data-testid='stMetric']").filter(has_text="Data duration").count() == 1
     _screenshot(page, "2_overview")
     _open(page, "Calibration")
-    page.get_by_role("tab", name="Noise and bias (Table 4)").wait_for()
+    page.get_by_role("heading", name="Results").wait_for()
     _screenshot(page, "3_calibration")
 
     _open(page, "Estimators")

@@ -12,8 +12,7 @@ from calib.tables import noise_table, r_tables, table4
 from calib.tau import TAU_METHODS
 
 TAU_CHOICES = (0.1, 0.2, 0.5, 1.0, 2.0, 5.0, 10.0, 20.0, 50.0, 100.0)
-TAU_MODE_LABELS = {"manual": "set by hand", "likelihood": "automatic: innovation likelihood",
-                   "nis": "automatic: mean NIS = 1"}
+TAU_MODE_LABELS = {"manual": "by hand", "likelihood": "auto: likelihood", "nis": "auto: mean NIS = 1"}
 WINDOW_KEY = "calib_window"
 
 log = session.require_log()
@@ -55,7 +54,7 @@ if automatic:
         "end_s": st.column_config.NumberColumn("end [s]", format="%.1f")})
 
 # ------------------------------------------------------------------ filter settings and calibration
-st.subheader("FIR filters")
+st.subheader("Filters and noise")
 available = [name for name, channels in SENSORS.items() if log.has(channels.stream)]
 requests = st.data_editor(
     pd.DataFrame({"sensor": available, "cutoff_hz": np.nan, "numtaps": 0}), hide_index=True, key="calib_fir",
@@ -63,63 +62,70 @@ requests = st.data_editor(
         "cutoff_hz": st.column_config.NumberColumn("cutoff [Hz] (empty: default)", min_value=0.01),
         "numtaps": st.column_config.NumberColumn("taps (0: default, odd)", min_value=0, step=2)})
 fir_rows = tuple((row.sensor, float(row.cutoff_hz), int(row.numtaps or 0)) for row in requests.itertuples())
-noise = st.radio("R from", ["sigma", "eta"], horizontal=True, key="calib_noise",
-                 format_func={"sigma": "sigma (residual std, default)", "eta": "eta (eq 50, as the paper)"}.get)
+left, right = st.columns(2)
+noise = left.radio("R from", ["sigma", "eta"], horizontal=True, key="calib_noise",
+                   format_func={"sigma": "sigma (residual std, default)", "eta": "eta (eq 50, as the paper)"}.get)
+tau_mode = right.radio("tau (eq 52: multiplies the accelerometer's body-y variance)", ["manual", *TAU_METHODS],
+                       horizontal=True, key="calib_tau_mode", format_func=TAU_MODE_LABELS.get)
+tau = right.select_slider("tau", TAU_CHOICES, value=1.0, key="calib_tau", disabled=tau_mode != "manual")
 with session.input_errors():
     base = adapters.calibration(root, sha256, window, fir_rows, noise)
+    selection = None if tau_mode == "manual" else adapters.auto_tau(root, sha256, window, fir_rows, noise, tau_mode)
+current = adapters.with_tau_value(base, selection or tau) if selection or tau != base.tau.tau else base
 for warning in base.warnings:
     st.warning(warning)
 
-# ------------------------------------------------------------------ results
-tab_noise, tab_filter, tab_r, tab_allan = st.tabs(["Noise and bias (Table 4)", "Filter and overlays",
-                                                  "R matrices and tau", "Allan deviation"])
-with tab_noise:
-    st.dataframe(tables.flat_columns(table4(base)), key="calib_table4")
-    st.caption("Paper Table 4 layout: eq 50 noise eta and bias beta, the residual sigma (per sample at the "
-               "stream's rate), its robust variant, and the physically referenced bias on a stationary segment.")
-    st.dataframe(noise_table(base).reset_index(), hide_index=True, key="calib_all_sensors")
+SECTIONS = ("Noise and bias (Table 4)", "Filter and overlays", "R matrices and tau", "Allan deviation")
 
-with tab_filter:
-    sensor = st.selectbox("Sensor", list(base.sensors), key="calib_sensor")
-    cal = base.sensors[sensor]
-    response = frequency_response(cal.fir)
-    st.plotly_chart(figures.frequency_response_figure(response.freq_hz, response.gain_single,
-                                                      response.gain_zero_phase, cal.fir.cutoff_hz))
-    time_s, raw, filtered = adapters.raw_and_filtered(root, sha256, sensor, (cal.segment.start_s, cal.segment.end_s),
-                                                      cal.fir.fs_hz, cal.fir.cutoff_hz, cal.fir.numtaps)
-    st.plotly_chart(figures.raw_filtered_figure(time_s, raw, filtered, cal.axes, cal.unit))
-    for warning in cal.warnings:
-        st.info(f"{sensor}: {warning}")
 
-with tab_r:
-    tau_mode = st.radio("tau (eq 52: multiplies the accelerometer's body-y variance)", ["manual", *TAU_METHODS],
-                        horizontal=True, key="calib_tau_mode", format_func=TAU_MODE_LABELS.get)
-    if tau_mode == "manual":
-        tau = st.select_slider("tau", TAU_CHOICES, value=1.0, key="calib_tau")
-        current = adapters.with_tau_value(base, tau) if tau != base.tau.tau else base
-    else:
-        with session.input_errors():
-            selection = adapters.auto_tau(root, sha256, window, fir_rows, noise, tau_mode)
-        current = adapters.with_tau_value(base, selection)
-        st.plotly_chart(figures.tau_curve_figure(selection.log10_tau_grid, selection.neg_log_likelihood,
-                                                 selection.mean_nis, selection.tau, selection.nis_band),
-                        key="calib_tau_curve")
-        st.caption(f"tau = {selection.tau:.3g}: mean NIS {selection.nis_at_tau:.3g} over {selection.n_innovations} "
-                   f"innovations (95 % band {selection.nis_band[0]:.3g} .. {selection.nis_band[1]:.3g}), lag-1 "
-                   f"autocorrelation {selection.lag1_autocorrelation:.2f}. {selection.note}")
-    columns = st.columns(3)
-    for k, (name, matrix) in enumerate(r_tables(current).items()):
-        unit = current.sensors[name].unit if name in current.sensors else ""
-        columns[k % 3].write(f"**{name}** [{unit}^2]")
-        columns[k % 3].dataframe(matrix.style.format("{:.3e}"), key=f"calib_r_{name}")
+@st.fragment
+def results() -> None:
+    """One result section at a time (only the one shown is computed; reruns alone on a change)."""
+    section = st.segmented_control("Show", SECTIONS, default=SECTIONS[0], key="calib_section")
+    if section == SECTIONS[0]:
+        st.dataframe(tables.flat_columns(table4(base)), key="calib_table4")
+        st.caption("Paper Table 4 layout: eq 50 noise eta and bias beta, the residual sigma (per sample at the "
+                   "stream's rate), its robust variant, and the physically referenced bias on a stationary segment.")
+        st.dataframe(noise_table(base).reset_index(), hide_index=True, key="calib_all_sensors")
+    elif section == SECTIONS[1]:
+        sensor = st.selectbox("Sensor", list(base.sensors), key="calib_sensor")
+        cal = base.sensors[sensor]
+        response = frequency_response(cal.fir)
+        st.plotly_chart(figures.frequency_response_figure(response.freq_hz, response.gain_single,
+                                                          response.gain_zero_phase, cal.fir.cutoff_hz))
+        time_s, raw, filtered = adapters.raw_and_filtered(root, sha256, sensor, (cal.segment.start_s,
+                                                                                 cal.segment.end_s),
+                                                          cal.fir.fs_hz, cal.fir.cutoff_hz, cal.fir.numtaps)
+        st.plotly_chart(figures.raw_filtered_figure(time_s, raw, filtered, cal.axes, cal.unit))
+        for warning in cal.warnings:
+            st.info(f"{sensor}: {warning}")
+    elif section == SECTIONS[2]:
+        if selection is not None:
+            st.plotly_chart(figures.tau_curve_figure(selection.log10_tau_grid, selection.neg_log_likelihood,
+                                                     selection.mean_nis, selection.tau, selection.nis_band),
+                            key="calib_tau_curve")
+            st.caption(f"tau = {selection.tau:.3g}: mean NIS {selection.nis_at_tau:.3g} over "
+                       f"{selection.n_innovations} innovations (95 % band {selection.nis_band[0]:.3g} .. "
+                       f"{selection.nis_band[1]:.3g}), lag-1 autocorrelation {selection.lag1_autocorrelation:.2f}. "
+                       f"{selection.note}")
+        columns = st.columns(3)
+        for k, (name, matrix) in enumerate(r_tables(current).items()):
+            unit = current.sensors[name].unit if name in current.sensors else ""
+            columns[k % 3].write(f"**{name}** [{unit}^2]")
+            columns[k % 3].dataframe(matrix.style.format("{:.3e}"), key=f"calib_r_{name}")
+    elif section == SECTIONS[3]:
+        if not base.allan:
+            st.info("No stationary segment: the Allan deviation needs the vehicle at rest (pick a stationary "
+                    "window).")
+        for name, curves in adapters.allan(root, sha256, window, fir_rows, noise).items():
+            axes, unit = base.sensors[name].axes, base.sensors[name].unit
+            st.plotly_chart(figures.allan_figure(curves, list(base.allan[name]), axes, unit), key=f"allan_{name}")
+            st.dataframe(tables.allan_table(base.allan[name], axes, unit), hide_index=True,
+                         key=f"allan_table_{name}")
 
-with tab_allan:
-    if not base.allan:
-        st.info("No stationary segment: the Allan deviation needs the vehicle at rest (pick a stationary window).")
-    for name, curves in adapters.allan(root, sha256, window, fir_rows, noise).items():
-        axes, unit = base.sensors[name].axes, base.sensors[name].unit
-        st.plotly_chart(figures.allan_figure(curves, list(base.allan[name]), axes, unit), key=f"allan_{name}")
-        st.dataframe(tables.allan_table(base.allan[name], axes, unit), hide_index=True, key=f"allan_table_{name}")
+
+st.subheader("Results")
+results()
 
 # ------------------------------------------------------------------ export
 st.subheader("Export")
