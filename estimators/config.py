@@ -50,6 +50,9 @@ class NoiseConfig:
         bias of a fixed-wing changes with every pitch transition through the cross-axis sensitivity (Table 1:
         +-2 % of the forward specific force, which changes by a few m/s^2 between climb, cruise and descent),
         while x and y see the nearly constant -g through theirs.
+    accel_cross_axis_rw_sqrt_s : float
+        Random walk of the z accelerometer's cross-axis sensitivities (``accel_cross_axis_states``) [1/sqrt(s)].
+        Default 1e-5: a constant of the sensor (a walk this slow only keeps the estimate from freezing).
     wind_rw_m_s_sqrt_s : float
         Wind random walk [m/s/sqrt(s)]. Default 0.05 (math note 3.3: (0.01-0.1 m/s)^2/s; PX4 EKF2_WIND_NSD 0.05).
     mag_bias_rw_sqrt_s : float
@@ -97,6 +100,7 @@ class NoiseConfig:
     gyro_bias_rw_rad_s2_sqrt_hz: float = 1.0e-4
     accel_bias_rw_m_s3_sqrt_hz: float = 1.0e-3
     accel_bias_rw_z_m_s3_sqrt_hz: float | None = None
+    accel_cross_axis_rw_sqrt_s: float = 1.0e-5
     wind_rw_m_s_sqrt_s: float = 0.05
     mag_bias_rw_sqrt_s: float = 1.0e-4
     baro_bias_rw_m_sqrt_s: float = 0.01
@@ -156,6 +160,8 @@ class InitialSigmas:
         Gyro bias [deg/s].
     accel_bias_m_s2 : float
         Accelerometer bias [m/s^2].
+    accel_cross_axis : float
+        Cross-axis sensitivity of the z accelerometer to x and y [-] (Table 1, MPU6050: +-2 %).
     wind_m_s : float
         Wind (north, east) [m/s].
     mag_bias : float
@@ -171,6 +177,7 @@ class InitialSigmas:
     yaw_unaided_deg: float = 30.0
     gyro_bias_deg_s: float = 0.5
     accel_bias_m_s2: float = 0.2
+    accel_cross_axis: float = 0.02
     wind_m_s: float = 3.0
     mag_bias: float = 0.1
     baro_bias_m: float = 2.0
@@ -236,6 +243,9 @@ class EstimatorConfig:
     timing : TimingConfig
     accel_bias_states : bool
         Estimate accelerometer biases (math note 4: on for real logs; off reproduces the paper's 14 states).
+    accel_cross_axis_states : bool
+        Estimate the z accelerometer's cross-axis sensitivity to the x and y specific force (two states; the
+        error-state filter only, and only with GPS like the accelerometer bias).
     mag_bias_states : bool
         Estimate magnetometer hard-iron biases when a magnetometer is fused.
     baro_bias_state : bool
@@ -249,6 +259,7 @@ class EstimatorConfig:
     initial: InitialSigmas = field(default_factory=InitialSigmas)
     timing: TimingConfig = field(default_factory=TimingConfig)
     accel_bias_states: bool = True
+    accel_cross_axis_states: bool = True
     mag_bias_states: bool = True
     baro_bias_state: bool = True
     gps_velocity_mode: str = "ned"

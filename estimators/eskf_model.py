@@ -15,13 +15,17 @@ b_a     m/s^2  accelerometer bias (body)
 w       m/s    wind (north, east): velocity of the air mass
 b_m     -      magnetometer hard-iron bias (body), in units of the earth-field strength
 b_b     m      barometer offset: baro height - true height
+k_z     -      cross-axis sensitivity of the z accelerometer to the x and y specific force (k_zx, k_zy)
 ======  =====  ===========================================================
 
-Error state ``dx`` (indices ``E_*``): ``(dp, dv, dtheta, db_g, db_a, dw, db_m, db_b)`` with the truth
+Error state ``dx`` (indices ``E_*``): ``(dp, dv, dtheta, db_g, db_a, dw, db_m, db_b, dk_z)`` with the truth
 ``p = p_hat + dp``, ``v = v_hat + dv``, ``R = R_hat Exp(dtheta)`` (``dtheta``: small rotation in BODY axes),
-``b = b_hat + db``, ``w = w_hat + dw``.
+``b = b_hat + db``, ``w = w_hat + dw``, ``k = k_hat + dk``.
 
-IMU model: ``gyro = omega + b_g + n_g``, ``accel = R^T (a - g_n) + b_a + n_a`` with ``g_n = (0, 0, +g)``.
+IMU model: ``gyro = omega + b_g + n_g``, ``accel = K^-1 R^T (a - g_n) + b_a + n_a`` with ``g_n = (0, 0, +g)``,
+``K = [[1, 0, 0], [0, 1, 0], [-k_zx, -k_zy, 1]]``: the specific force is ``f = K (accel - b_a)``, i.e. the z
+accelerometer also sees ``k_zx f_x + k_zy f_y`` (cross-axis coupling, Table 1: up to 2 %; it changes the
+effective z bias at every climb/cruise/descent transition, math note 5 [ADD]). ``k = 0`` when not estimated.
 Each IMU sample is held constant over its interval ``dt`` (zero-order hold).
 
 Every function here is a small ``numba`` kernel; finite differences appear only in the tests.
@@ -43,7 +47,8 @@ X_BA = 13
 X_W = 16
 X_BM = 18
 X_BB = 21
-NX = 22
+X_KZ = 22
+NX = 24
 
 # Error state layout (see ``estimators.full_state_indirect.ERROR_STATES`` for units and sigmas).
 E_P = 0
@@ -54,7 +59,8 @@ E_BA = 12
 E_W = 15
 E_BM = 17
 E_BB = 20
-NE = 21
+E_KZ = 21
+NE = 23
 
 _SMALL_ANGLE_RAD = 1e-6
 
@@ -193,7 +199,7 @@ def propagate_nominal(x, gyro_rad_s, accel_m_s2, dt_s, gravity_m_s2):
     """Advance the nominal state over one IMU interval (allocation-free; the time loop calls it per sample).
 
     Exact exponential map for the attitude and mid-interval attitude for the specific force, with
-    ``omega = gyro - b_g`` and ``f = accel - b_a`` held over the interval:
+    ``omega = gyro - b_g`` and ``f = K (accel - b_a)`` held over the interval:
     ``q <- q (x) Exp(omega dt)``, ``a = R(q (x) Exp(omega dt/2)) f + g_n``, ``p <- p + v dt + a dt^2/2``,
     ``v <- v + a dt``; biases, wind and offsets are constant.
 
@@ -214,7 +220,7 @@ def propagate_nominal(x, gyro_rad_s, accel_m_s2, dt_s, gravity_m_s2):
     mw, mx, my, mz = _quat_mul_scalars(x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3], hw, hx, hy, hz)
     fx = accel_m_s2[0] - x[X_BA]
     fy = accel_m_s2[1] - x[X_BA + 1]
-    fz = accel_m_s2[2] - x[X_BA + 2]
+    fz = accel_m_s2[2] - x[X_BA + 2] - x[X_KZ] * fx - x[X_KZ + 1] * fy
     # a = q_mid f q_mid* + g_n  (v' = v + 2 w (u x v) + 2 u x (u x v) for a unit quaternion (w, u))
     cx = my * fz - mz * fy
     cy = mz * fx - mx * fz
@@ -245,7 +251,8 @@ def transition(x, gyro_rad_s, accel_m_s2, dt_s, F):
     ``F`` is the exact first-order Jacobian of the discrete map with respect to the error at the start of the
     interval (right perturbation), so that ``dx_{k+1} = F dx_k`` to first order; with
     ``R_h = Exp(omega dt/2)``, ``R_mid = R R_h``, ``J_r`` the right Jacobian of SO(3) and
-    ``a_theta = -R [R_h f]x``, ``a_bg = R_mid [f]x J_r(omega dt/2) dt/2``, ``a_ba = -R_mid``:
+    ``a_theta = -R [R_h f]x``, ``a_bg = R_mid [f]x J_r(omega dt/2) dt/2``, ``a_ba = -R_mid K``,
+    ``a_kz = -R_mid e_z (f_x, f_y)`` (``f = K (accel - b_a)``):
     ``F_pv = I dt``, ``F_p* = a_* dt^2/2``, ``F_v* = a_* dt``, ``F_thth = Exp(omega dt)^T``,
     ``F_thbg = -J_r(omega dt) dt``; identity elsewhere. Input noise enters as the bias errors do
     (``gyro = omega + b_g + n_g``), so the noise input matrices are the bias columns of ``F``
@@ -268,7 +275,8 @@ def transition(x, gyro_rad_s, accel_m_s2, dt_s, F):
     wz = gyro_rad_s[2] - x[X_BG + 2]
     fx = accel_m_s2[0] - x[X_BA]
     fy = accel_m_s2[1] - x[X_BA + 1]
-    fz = accel_m_s2[2] - x[X_BA + 2]
+    kzx, kzy = x[X_KZ], x[X_KZ + 1]
+    fz = accel_m_s2[2] - x[X_BA + 2] - kzx * fx - kzy * fy
     half = 0.5 * dt_s
     work = np.empty((7, 3, 3))  # R, R_half, R_mid, Exp(omega dt), J_r(full), J_r(half), scratch
     R, R_half, R_mid, R_full, J_full, J_half, tmp = (work[0], work[1], work[2], work[3], work[4], work[5],
@@ -294,14 +302,26 @@ def transition(x, gyro_rad_s, accel_m_s2, dt_s, F):
     _matmul3_into(R_mid, R_half, a_bg)
     half_dt2 = 0.5 * dt_s * dt_s
     for i in range(3):
+        # a_ba = -R_mid K: K's third row (-k_zx, -k_zy, 1) mixes the x and y bias errors into f_z
+        a_ba0 = -(R_mid[i, 0] - R_mid[i, 2] * kzx)
+        a_ba1 = -(R_mid[i, 1] - R_mid[i, 2] * kzy)
+        a_ba2 = -R_mid[i, 2]
         F[E_P + i, E_V + i] = dt_s
+        F[E_P + i, E_BA] = a_ba0 * half_dt2
+        F[E_P + i, E_BA + 1] = a_ba1 * half_dt2
+        F[E_P + i, E_BA + 2] = a_ba2 * half_dt2
+        F[E_V + i, E_BA] = a_ba0 * dt_s
+        F[E_V + i, E_BA + 1] = a_ba1 * dt_s
+        F[E_V + i, E_BA + 2] = a_ba2 * dt_s
+        F[E_P + i, E_KZ] = -R_mid[i, 2] * fx * half_dt2
+        F[E_P + i, E_KZ + 1] = -R_mid[i, 2] * fy * half_dt2
+        F[E_V + i, E_KZ] = -R_mid[i, 2] * fx * dt_s
+        F[E_V + i, E_KZ + 1] = -R_mid[i, 2] * fy * dt_s
         for j in range(3):
             F[E_P + i, E_TH + j] = -a_th[i, j] * half_dt2
             F[E_P + i, E_BG + j] = a_bg[i, j] * half * half_dt2
-            F[E_P + i, E_BA + j] = -R_mid[i, j] * half_dt2
             F[E_V + i, E_TH + j] = -a_th[i, j] * dt_s
             F[E_V + i, E_BG + j] = a_bg[i, j] * half * dt_s
-            F[E_V + i, E_BA + j] = -R_mid[i, j] * dt_s
             F[E_TH + i, E_TH + j] = R_full[j, i]
             F[E_TH + i, E_BG + j] = -J_full[i, j] * dt_s
 
@@ -359,7 +379,7 @@ def _add_input_noise(F, col0, var, Q):
 def inject(x, dx, P):
     """Inject an estimated error into the nominal state and reset the error to zero (design note 5.4).
 
-    ``p += dp, v += dv, q <- q (x) Exp(dtheta), b += db, w += dw``; the covariance of the reset error is
+    ``p += dp, v += dv, q <- q (x) Exp(dtheta), b += db, w += dw, k += dk``; the covariance of the reset error is
     ``G P G^T`` with ``G = blockdiag(I, I, I - [dtheta/2]x, I, ...)`` (Sola 2017 sec. 7.2). ``dx`` is zeroed.
     """
     for i in range(3):
@@ -371,6 +391,8 @@ def inject(x, dx, P):
     x[X_W] += dx[E_W]
     x[X_W + 1] += dx[E_W + 1]
     x[X_BB] += dx[E_BB]
+    x[X_KZ] += dx[E_KZ]
+    x[X_KZ + 1] += dx[E_KZ + 1]
     q = quat_multiply(x[X_Q:X_Q + 4], quat_exp(dx[E_TH:E_TH + 3]))
     x[X_Q:X_Q + 4] = q / np.sqrt(np.sum(q * q))
 

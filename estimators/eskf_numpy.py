@@ -46,12 +46,19 @@ from estimators.full_state_indirect import (
     P_VMIN,
 )
 
-P_, V_, Q_, BG_, BA_, W_, BM_ = (slice(m.X_P, m.X_P + 3), slice(m.X_V, m.X_V + 3), slice(m.X_Q, m.X_Q + 4),
-                                 slice(m.X_BG, m.X_BG + 3), slice(m.X_BA, m.X_BA + 3), slice(m.X_W, m.X_W + 2),
-                                 slice(m.X_BM, m.X_BM + 3))
-DP, DV, DTH, DBG, DBA, DW, DBM = (slice(m.E_P, m.E_P + 3), slice(m.E_V, m.E_V + 3), slice(m.E_TH, m.E_TH + 3),
-                                  slice(m.E_BG, m.E_BG + 3), slice(m.E_BA, m.E_BA + 3), slice(m.E_W, m.E_W + 2),
-                                  slice(m.E_BM, m.E_BM + 3))
+P_, V_, Q_, BG_, BA_, W_, BM_, KZ_ = (slice(m.X_P, m.X_P + 3), slice(m.X_V, m.X_V + 3), slice(m.X_Q, m.X_Q + 4),
+                                      slice(m.X_BG, m.X_BG + 3), slice(m.X_BA, m.X_BA + 3), slice(m.X_W, m.X_W + 2),
+                                      slice(m.X_BM, m.X_BM + 3), slice(m.X_KZ, m.X_KZ + 2))
+DP, DV, DTH, DBG, DBA, DW, DBM, DKZ = (slice(m.E_P, m.E_P + 3), slice(m.E_V, m.E_V + 3), slice(m.E_TH, m.E_TH + 3),
+                                       slice(m.E_BG, m.E_BG + 3), slice(m.E_BA, m.E_BA + 3), slice(m.E_W, m.E_W + 2),
+                                       slice(m.E_BM, m.E_BM + 3), slice(m.E_KZ, m.E_KZ + 2))
+
+
+def cross_axis(x):
+    """K with f = K (accel - b_a): the z accelerometer's cross-axis sensitivities removed."""
+    K = np.eye(3)
+    K[2, 0:2] = -x[KZ_]
+    return K
 
 
 def rotation(q):
@@ -89,8 +96,8 @@ def right_jacobian(phi):
 
 
 def propagate(x, gyro, accel, dt, g):
-    """Math note 5.3: exact exponential map, mid-interval attitude for the specific force."""
-    omega, f = gyro - x[BG_], accel - x[BA_]
+    """Math note 5.3: exact exponential map, mid-interval attitude for the specific force f = K (accel - b_a)."""
+    omega, f = gyro - x[BG_], cross_axis(x) @ (accel - x[BA_])
     a = rotation(x[Q_]) @ exp_so3(omega * dt / 2) @ f + np.array([0.0, 0.0, g])
     out = x.copy()
     out[P_] = x[P_] + x[V_] * dt + a * dt * dt / 2
@@ -102,14 +109,16 @@ def propagate(x, gyro, accel, dt, g):
 
 def transition_and_noise(x, gyro, accel, dt, ng2, na2, rw_psd):
     """F of one step (blocks of :func:`estimators.eskf_model.transition`) and Q = G Sigma G^T + diag(K^2) dt."""
-    omega, f = gyro - x[BG_], accel - x[BA_]
+    K = cross_axis(x)
+    omega, f = gyro - x[BG_], K @ (accel - x[BA_])
     R, R_half = rotation(x[Q_]), exp_so3(omega * dt / 2)
     R_mid = R @ R_half
     a_th = -R @ skew(R_half @ f)
     a_bg = R_mid @ skew(f) @ right_jacobian(omega * dt / 2) * dt / 2
+    a_kz = -np.outer(R_mid[:, 2], f[0:2])  # f_z = ... - k_zx f_x - k_zy f_y
     F = np.eye(m.NE)
     F[DP, DV] = np.eye(3) * dt
-    for block, deriv in ((DTH, a_th), (DBG, a_bg), (DBA, -R_mid)):
+    for block, deriv in ((DTH, a_th), (DBG, a_bg), (DBA, -R_mid @ K), (DKZ, a_kz)):
         F[DP, block] = deriv * dt * dt / 2
         F[DV, block] = deriv * dt
     F[DTH, DTH] = exp_so3(omega * dt).T
@@ -170,7 +179,7 @@ def h_and_H(x, kind, comp, values, field, lever, gyro):
 def inject(x, dx, P):
     """x (+) dx and P <- G P G^T with G_thth = I - [dtheta/2]x (math note 5.4)."""
     out = x.copy()
-    for xs, es in ((P_, DP), (V_, DV), (BG_, DBG), (BA_, DBA), (W_, DW), (BM_, DBM)):
+    for xs, es in ((P_, DP), (V_, DV), (BG_, DBG), (BA_, DBA), (W_, DW), (BM_, DBM), (KZ_, DKZ)):
         out[xs] += dx[es]
     out[m.X_BB] += dx[m.E_BB]
     q = quat_product(x[Q_], exp_quat(dx[DTH]))

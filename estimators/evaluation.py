@@ -177,5 +177,6 @@ def config_for_simulation(sidecar: str | Path | dict, base: EstimatorConfig | No
         gps_vel_sigma_floor_m_s=gps["velocity_noise_m_s"])
     base = EstimatorConfig() if base is None else base
     return EstimatorConfig(noise=noise, gates=base.gates, initial=base.initial, timing=base.timing,
-                           accel_bias_states=base.accel_bias_states, mag_bias_states=base.mag_bias_states,
+                           accel_bias_states=base.accel_bias_states,
+                           accel_cross_axis_states=base.accel_cross_axis_states, mag_bias_states=base.mag_bias_states,
                            baro_bias_state=base.baro_bias_state, gps_velocity_mode=base.gps_velocity_mode)

@@ -7,7 +7,8 @@ kinematics at the IMU rate and a small error state estimated by the EKF, injecte
 zero after each sensor's group of scalar updates.
 
 Nominal state (:mod:`estimators.eskf_model`): position NED, ground velocity NED, attitude quaternion (body FRD ->
-NED), gyro bias, accelerometer bias, wind (north, east), magnetometer hard-iron bias, barometer offset.
+NED), gyro bias, accelerometer bias, wind (north, east), magnetometer hard-iron bias, barometer offset, the z
+accelerometer's cross-axis sensitivities to x and y (``accel_cross_axis_states``, with GPS).
 Error state: the table :func:`error_state_table` (name, unit, initial sigma, process sigma), from which P0 and the
 random walks are built; a block is present only when it helps, exactly as in the direct filter (same sensor plan
 from :mod:`estimators.events`): accelerometer bias with ``accel_bias_states``; wind only with an airspeed sensor
@@ -106,7 +107,7 @@ GPS_LEVER_ARM_PARAMETERS = ("EKF2_GPS_POS_X", "EKF2_GPS_POS_Y", "EKF2_GPS_POS_Z"
 OUT_COLUMNS = ("time_s", *(f"x{i}" for i in range(m.NX)))
 #: Nominal-state names (report), in the order of :mod:`estimators.eskf_model`.
 NOMINAL_NAMES = ("pn", "pe", "pd", "vn", "ve", "vd", "qw", "qx", "qy", "qz", "bgx", "bgy", "bgz", "bax", "bay",
-                 "baz", "wn", "we", "bmx", "bmy", "bmz", "bb")
+                 "baz", "wn", "we", "bmx", "bmy", "bmz", "bb", "kzx", "kzy")
 
 
 def error_state_table(config: EstimatorConfig, *, absolute_yaw: bool) -> tuple[StateSpec, ...]:
@@ -140,6 +141,7 @@ def error_state_table(config: EstimatorConfig, *, absolute_yaw: bool) -> tuple[S
     rows += [StateSpec(n, "m/s", ini.wind_m_s, noise.wind_rw_m_s_sqrt_s) for n in ("dwn", "dwe")]
     rows += [StateSpec(n, "-", ini.mag_bias, noise.mag_bias_rw_sqrt_s) for n in ("dbmx", "dbmy", "dbmz")]
     rows.append(StateSpec("dbb", "m", ini.baro_bias_m, noise.baro_bias_rw_m_sqrt_s))
+    rows += [StateSpec(n, "-", ini.accel_cross_axis, noise.accel_cross_axis_rw_sqrt_s) for n in ("dkzx", "dkzy")]
     return tuple(rows)
 
 
@@ -152,6 +154,7 @@ def active_error_states(config: EstimatorConfig, plan: events.SensorPlan) -> np.
     active[m.E_W:m.E_W + 2] = plan.has_airspeed
     active[m.E_BM:m.E_BM + 3] = plan.has_mag and config.mag_bias_states
     active[m.E_BB] = plan.has_baro and plan.has_gps and config.baro_bias_state
+    active[m.E_KZ:m.E_KZ + 2] = config.accel_bias_states and config.accel_cross_axis_states and plan.has_gps
     return np.flatnonzero(active).astype(np.int64)
 
 

@@ -26,6 +26,7 @@ def random_state(rng: np.random.Generator) -> np.ndarray:
     x[m.X_W:m.X_W + 2] = rng.normal(0.0, 4.0, 2)
     x[m.X_BM:m.X_BM + 3] = rng.normal(0.0, 0.05, 3)
     x[m.X_BB] = rng.normal(0.0, 3.0)
+    x[m.X_KZ:m.X_KZ + 2] = rng.normal(0.0, 0.02, 2)
     return x
 
 
@@ -49,6 +50,7 @@ def boxminus(x1: np.ndarray, x0: np.ndarray) -> np.ndarray:
     dx[m.E_W:m.E_W + 2] = x1[m.X_W:m.X_W + 2] - x0[m.X_W:m.X_W + 2]
     dx[m.E_BM:m.E_BM + 3] = x1[m.X_BM:m.X_BM + 3] - x0[m.X_BM:m.X_BM + 3]
     dx[m.E_BB] = x1[m.X_BB] - x0[m.X_BB]
+    dx[m.E_KZ:m.E_KZ + 2] = x1[m.X_KZ:m.X_KZ + 2] - x0[m.X_KZ:m.X_KZ + 2]
     return dx
 
 
@@ -264,7 +266,8 @@ def test_h_first_order(rng):
 
 
 def test_nominal_step_matches_matrix_form(rng):
-    """The scalar-unrolled step equals the matrix form of math note 5.3 (mid-interval attitude for f)."""
+    """The scalar-unrolled step equals the matrix form of math note 5.3 (mid-interval attitude for f), with the
+    specific force f = K (accel - b_a) of the z accelerometer's cross-axis states."""
     x = random_state(rng)
     gyro = rng.normal(0.0, 2.0, 3)
     accel = rng.normal(0.0, 5.0, 3)
@@ -273,7 +276,9 @@ def test_nominal_step_matches_matrix_form(rng):
     m.propagate_nominal(out, gyro, accel, dt, GRAVITY_M_S2)
     omega = gyro - x[m.X_BG:m.X_BG + 3]
     r0 = Rotation.from_quat(np.roll(x[m.X_Q:m.X_Q + 4], -1))
-    a = (r0 * Rotation.from_rotvec(omega * dt / 2)).apply(accel - x[m.X_BA:m.X_BA + 3]) + np.array([0, 0, GRAVITY_M_S2])
+    f = accel - x[m.X_BA:m.X_BA + 3]
+    f[2] -= x[m.X_KZ] * f[0] + x[m.X_KZ + 1] * f[1]
+    a = (r0 * Rotation.from_rotvec(omega * dt / 2)).apply(f) + np.array([0, 0, GRAVITY_M_S2])
     np.testing.assert_allclose(out[m.X_V:m.X_V + 3], x[m.X_V:m.X_V + 3] + a * dt, atol=1e-12)
     np.testing.assert_allclose(out[m.X_P:m.X_P + 3], x[m.X_P:m.X_P + 3] + x[m.X_V:m.X_V + 3] * dt + a * dt ** 2 / 2,
                                atol=1e-12)
