@@ -142,20 +142,22 @@ def test_estimators_run_compare_and_diagnose(open_page, workspace_dir):
     [rms] = [table.value for table in at.table if "Roll Angle (deg)" in table.value.columns]
     assert list(rms.index) == ["three_stage", "full_state_direct", "full_state_indirect"]
     assert list(rms.columns)[-1] == "Wind (m/s)" and rms["Yaw Angle (deg)"].notna().all()
-    [summary] = _frames(at, lambda v: "mean NIS [-]" in v.columns)
-    assert set(summary["estimator"]) == set(rms.index)
-
-    charts = {chart.proto.id: chart for chart in at.get("plotly_chart")}
-    assert len(charts) == 3  # states, innovations, NIS
+    charts = at.get("plotly_chart")
+    assert len(charts) == 1 and json.loads(charts[0].proto.spec)["layout"]["title"]["text"] == "Attitude"
     at.segmented_control(key="est_panel").set_value("Errors").run()
     titles = [json.loads(c.proto.spec)["layout"]["title"]["text"] for c in at.get("plotly_chart")]
-    assert "Errors against the truth" in titles
+    assert titles == ["Errors against the truth"]
+
+    at.segmented_control(key="est_panel").set_value("Innovations and NIS").run()
+    [summary] = _frames(at, lambda v: "mean NIS [-]" in v.columns)
+    assert set(summary["estimator"]) == set(rms.index)
     at.selectbox(key="est_diag_estimator").set_value("full_state_direct").run()
     at.selectbox(key="est_diag_sensor").set_value("gps_vel").run()
     assert not at.exception
-    innovations = json.loads(at.get("plotly_chart")[1].proto.spec)
-    assert innovations["layout"]["title"]["text"] == "full_state_direct: gps_vel innovations"
-    assert innovations["layout"]["yaxis"]["title"]["text"] == "n [m/s]"
+    innovations, nis = (json.loads(chart.proto.spec)["layout"] for chart in at.get("plotly_chart"))
+    assert innovations["title"]["text"] == "full_state_direct: gps_vel innovations"
+    assert innovations["yaxis"]["title"]["text"] == "n [m/s]"
+    assert nis["yaxis"]["title"]["text"] == "mean NIS over 50 updates [-]"
 
     at.button[0].click()  # the same settings again: the stored run is shown, not recomputed
     at.run()

@@ -79,15 +79,20 @@ PANELS = {
                             ("course_deg", "course [deg]"), ("airspeed_m_s", "airspeed [m/s]")],
     "Wind": [("wind_n_m_s", "wind north [m/s]"), ("wind_e_m_s", "wind east [m/s]")],
 }
+INNOVATIONS = "Innovations and NIS"
 ERROR_ROWS = [(column, f"{label.split(' (')[0].lower()} error [{unit}]")
               for column, (label, unit) in comparison.QUANTITIES.items()]
 
 
 @st.fragment
-def state_plots() -> None:
-    """States of every source, or their errors against the reference (reruns alone on a change)."""
-    panel = st.segmented_control("Show", [*PANELS, "Track", "Errors"], default="Attitude", key="est_panel")
-    if panel == "Track":
+def comparison_plots() -> None:
+    """One view at a time: states of every source, their errors against the reference, or the innovations and NIS
+    (only the view shown is computed; reruns alone on a change)."""
+    panel = st.segmented_control("Show", [*PANELS, "Track", "Errors", INNOVATIONS], default="Attitude",
+                                 key="est_panel")
+    if panel == INNOVATIONS:
+        innovation_plots()
+    elif panel == "Track":
         tracks = {name: frame for name, frame in result.quantities.items() if frame["north_m"].notna().any()}
         if tracks:
             st.plotly_chart(figures.track_figure(tracks), key="est_track")
@@ -103,9 +108,8 @@ def state_plots() -> None:
         st.plotly_chart(figures.quantity_figure(result.quantities, PANELS[panel], title=panel), key="est_states")
 
 
-@st.fragment
 def innovation_plots() -> None:
-    """Innovations and NIS of one estimator's sensor (reruns alone on a change)."""
+    """Consistency summary, then the innovations and NIS of one estimator's sensor."""
     summary = adapters.nis_summary(root, run_id)
     st.dataframe(summary, hide_index=True, key="nis_summary")
     left, middle, right = st.columns(3)
@@ -126,9 +130,7 @@ def innovation_plots() -> None:
 
 
 st.subheader("Comparison")
-state_plots()
-st.subheader("Innovations and NIS")
-innovation_plots()
+comparison_plots()
 
 st.subheader("Download")
 columns = st.columns(4)
