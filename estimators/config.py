@@ -244,8 +244,8 @@ class EstimatorConfig:
     accel_bias_states : bool
         Estimate accelerometer biases (math note 4: on for real logs; off reproduces the paper's 14 states).
     accel_cross_axis_states : bool
-        Estimate the z accelerometer's cross-axis sensitivity to the x and y specific force (two states; the
-        error-state filter only, and only with GPS like the accelerometer bias).
+        Estimate the z accelerometer's cross-axis sensitivity to the x (and, off fixed-wing, y) specific force
+        (the error-state filter only, and only with GPS like the accelerometer bias).
     mag_bias_states : bool
         Estimate magnetometer hard-iron biases when a magnetometer is fused.
     baro_bias_state : bool

@@ -154,7 +154,11 @@ def active_error_states(config: EstimatorConfig, plan: events.SensorPlan) -> np.
     active[m.E_W:m.E_W + 2] = plan.has_airspeed
     active[m.E_BM:m.E_BM + 3] = plan.has_mag and config.mag_bias_states
     active[m.E_BB] = plan.has_baro and plan.has_gps and config.baro_bias_state
-    active[m.E_KZ:m.E_KZ + 2] = config.accel_bias_states and config.accel_cross_axis_states and plan.has_gps
+    # z accelerometer cross-axis: k_zx (climbs, descents and accelerations change the forward specific force);
+    # k_zy only off fixed-wing, whose coordinated flight keeps the lateral specific force near zero (unobservable)
+    cross_axis = config.accel_bias_states and config.accel_cross_axis_states and plan.has_gps
+    active[m.E_KZ] = cross_axis
+    active[m.E_KZ + 1] = cross_axis and not plan.fixed_wing
     return np.flatnonzero(active).astype(np.int64)
 
 
