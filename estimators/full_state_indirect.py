@@ -424,7 +424,7 @@ def run_kernel(imu_t, imu_gyro, imu_accel, ev_t, ev_kind, ev_imu, ev_val, ev_var
                                   F, Q, work, active, counters)
             is_gps = kind in (GPS_POS, GPS_VEL)
             if is_gps:
-                # (re)acquisition: position and velocity to GPS, variances to R, cross-covariances zeroed (2.3)
+                # (re)acquisition (math note 2.3): position and velocity to the GPS, see reset_to_gps
                 reset, counted = ekf_core.gps_reset_due(gps_mon, kind == GPS_POS, t, params[P_GPS_REJECT_S],
                                                         params[P_GPS_OUTAGE_S])
                 if reset:
