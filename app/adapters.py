@@ -251,16 +251,23 @@ def calibration_files(root: str, sha256: str, cal: Calibration) -> tuple[str, st
 
 
 # ---------------------------------------------------------------------------------------------------- estimators
-@st.cache_resource(max_entries=4, show_spinner="Loading the estimator run ...")
-def stored_run(root: str, run_id: str) -> tuple[pd.DataFrame, pd.DataFrame, dict]:
-    """States, diagnostics and report of a stored run (a resource: large, read-only, never pickled per rerun)."""
-    return open_workspace(root).load_run(run_id)
+@st.cache_resource(max_entries=8, show_spinner="Loading the estimator run ...")
+def run_table(root: str, run_id: str, table: str) -> pd.DataFrame:
+    """The ``"states"`` or ``"diagnostics"`` of a stored run (a resource: large, read-only, never pickled per
+    rerun; the diagnostics are only read when a page shows them)."""
+    return open_workspace(root).load_run_table(run_id, table)
+
+
+@st.cache_data(max_entries=16, show_spinner=False)
+def run_report(root: str, run_id: str) -> dict:
+    """The per-estimator report of a stored run."""
+    return open_workspace(root).load_run_report(run_id)
 
 
 @st.cache_resource(max_entries=4, show_spinner="Comparing with the reference ...")
 def run_comparison(root: str, sha256: str, run_id: str) -> Comparison:
     """The run's estimators against the log's reference (:func:`app.comparison.compare`)."""
-    return comparison.compare(stored_run(root, run_id)[0], stored_log(root, sha256))
+    return comparison.compare(run_table(root, run_id, "states"), stored_log(root, sha256))
 
 
 @st.cache_data(max_entries=16, show_spinner=False)
@@ -272,7 +279,7 @@ def rms_table(root: str, sha256: str, run_id: str) -> pd.DataFrame:
 @st.cache_data(max_entries=16, show_spinner=False)
 def nis_summary(root: str, run_id: str) -> pd.DataFrame:
     """Per estimator and sensor: updates, accepted share, mean NIS, share inside the 95 % bound."""
-    return comparison.nis_summary(stored_run(root, run_id)[1])
+    return comparison.nis_summary(run_table(root, run_id, "diagnostics"))
 
 
 @st.cache_data(max_entries=16, show_spinner=False)
@@ -283,7 +290,7 @@ def moving_nis(root: str, run_id: str, estimator: str, sensor: str, window: int)
 
 def sensor_diagnostics(root: str, run_id: str, estimator: str, sensor: str) -> pd.DataFrame:
     """Diagnostics rows of one estimator and sensor of a stored run."""
-    diagnostics = stored_run(root, run_id)[1]
+    diagnostics = run_table(root, run_id, "diagnostics")
     return diagnostics.loc[(diagnostics["estimator"] == estimator) & (diagnostics["sensor"] == sensor)]
 
 
@@ -301,7 +308,7 @@ def run_file(root: str, run_id: str, table: str, suffix: str) -> Callable[[], by
     """A callable producing a stored run's ``states`` / ``diagnostics`` as Parquet or CSV bytes, for a lazy
     download button (nothing is converted until the user clicks)."""
     def produce() -> bytes:
-        path = open_workspace(root).root / "runs" / run_id / f"{table}.parquet"
+        path = open_workspace(root).run_table_path(run_id, table)
         return path.read_bytes() if suffix == "parquet" else pd.read_parquet(path).to_csv(index=False).encode()
 
     return produce

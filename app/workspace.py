@@ -46,6 +46,8 @@ CREATE TABLE IF NOT EXISTS runs (
     run_id TEXT PRIMARY KEY, log_sha256 TEXT NOT NULL, settings_json TEXT NOT NULL, created_utc TEXT NOT NULL);
 """
 _KINDS = {"logs": "sha256", "calibrations": "calib_id", "runs": "run_id"}
+#: Tables of a stored estimator run.
+RUN_TABLES = ("states", "diagnostics")
 
 
 def sanitize_name(name: str, max_length: int = 80) -> str:
@@ -208,9 +210,22 @@ class Workspace:
 
     def load_run(self, run_id: str) -> tuple[pd.DataFrame, pd.DataFrame, dict]:
         """States, diagnostics and report of a stored run."""
-        directory = self.root / "runs" / run_id
-        return (pd.read_parquet(directory / "states.parquet"), pd.read_parquet(directory / "diagnostics.parquet"),
-                json.loads((directory / "report.json").read_text()))
+        return self.load_run_table(run_id, "states"), self.load_run_table(run_id, "diagnostics"), \
+            self.load_run_report(run_id)
+
+    def run_table_path(self, run_id: str, table: str) -> Path:
+        """Parquet file of a stored run's ``"states"`` or ``"diagnostics"`` table."""
+        if table not in RUN_TABLES:
+            raise ValueError(f"run table must be one of {RUN_TABLES}, got {table!r}")
+        return self.root / "runs" / run_id / f"{table}.parquet"
+
+    def load_run_table(self, run_id: str, table: str) -> pd.DataFrame:
+        """One table of a stored run (a large diagnostics table need not be read to show the states)."""
+        return pd.read_parquet(self.run_table_path(run_id, table))
+
+    def load_run_report(self, run_id: str) -> dict:
+        """The report of a stored run."""
+        return json.loads((self.root / "runs" / run_id / "report.json").read_text())
 
     def calibration_path(self, calib_id: str) -> Path:
         """Path of a stored calibration JSON."""

@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import tomllib
 
+import pytest
+
 from app import runs, samples
 from app.cli import build_parser
 from app.commands import dashboard
@@ -60,6 +62,9 @@ def test_prepare_samples_stores_a_default_run_once(tmp_path):
     states, diagnostics, report = workspace.load_run(run_id)
     assert set(states["estimator"].astype(str)) == set(report) == set(runs.RunSettings().estimators)
     assert len(diagnostics) > 0 and any("running the estimators" in line for line in lines)
+    assert workspace.load_run_table(run_id, "states").equals(states) and workspace.load_run_report(run_id) == report
+    with pytest.raises(ValueError, match="run table"):
+        workspace.run_table_path(run_id, "../catalog")
     assert runs.find_run(workspace, entry.sha256, runs.RunSettings()) == run_id
     samples.prepare_samples(Workspace(tmp_path / "ws"), short, report=lines.append)  # restart: nothing to redo
     assert len(workspace.list_runs(entry.sha256)) == 1

@@ -53,7 +53,7 @@ labels = dict(zip(stored["run_id"], tables.runs_table(stored, workspace.list_log
 if st.session_state.get(RUN_KEY) not in labels:
     st.session_state[RUN_KEY] = next(iter(labels))
 run_id = st.selectbox("Run", list(labels), format_func=labels.get, key=RUN_KEY)
-states, diagnostics, report = adapters.stored_run(root, run_id)
+report = adapters.run_report(root, run_id)
 result = adapters.run_comparison(root, sha256, run_id)
 
 for name, facts in report.items():
