@@ -22,7 +22,7 @@ import numpy as np
 import pandas as pd
 import streamlit as st
 
-from app import comparison, runs, samples, sun_compare, tables
+from app import comparison, runs, samples, tables
 from app.commands.calibrate import local_gravity, tau_replay
 from app.comparison import Comparison, gps_origin
 from app.loading import load_log
@@ -42,8 +42,8 @@ from calib.segments import (
 )
 from calib.tau import TauSelection, choose_tau, user_tau
 from estimators.environment import geodetic_to_ned
-from estimators.sun_vector import solve_sun_log
-from ingest import FlightLog, SunDevice
+from estimators.sun_prediction import sun_vector_table
+from ingest import FlightLog
 
 #: Bytes per MB in Streamlit's ``server.maxUploadSize``.
 BYTES_PER_MB = 1024 * 1024
@@ -316,26 +316,7 @@ def run_file(root: str, run_id: str, table: str, suffix: str) -> Callable[[], by
 
 # ---------------------------------------------------------------------------------------------------- sun vector
 @st.cache_data(max_entries=8, show_spinner="Solving the sun vector ...")
-def sun_solution(root: str, sha256: str) -> pd.DataFrame:
-    """:func:`estimators.sun_vector.solve_sun_log` of the log's photocell currents with its device geometry."""
-    log = stored_log(root, sha256)
-    return solve_sun_log(log["sun"], device=log.meta.sun_device or SunDevice())
-
-
-@st.cache_data(max_entries=8, show_spinner="Predicting the sun direction ...")
-def sun_prediction(root: str, sha256: str, attitude_source: str) -> pd.DataFrame:
-    """Solved and predicted body-frame sun azimuth / elevation [deg] and their angle [deg] per solver epoch.
-
-    Columns: ``time_s``, ``solved_azimuth_deg``, ``solved_elevation_deg``, ``predicted_azimuth_deg``,
-    ``predicted_elevation_deg``, ``error_deg``.
-    """
-    log = stored_log(root, sha256)
-    solution = sun_solution(root, sha256)
-    time_s = solution["time_s"].to_numpy(float)
-    solved = solution[["sun_x", "sun_y", "sun_z"]].to_numpy(float)
-    predicted = sun_compare.predicted_sun_body(log, attitude_source, time_s, gps_origin(log))
-    solved_az, solved_el = sun_compare.body_angles_deg(solved)
-    predicted_az, predicted_el = sun_compare.body_angles_deg(predicted)
-    return pd.DataFrame({"time_s": time_s, "solved_azimuth_deg": solved_az, "solved_elevation_deg": solved_el,
-                         "predicted_azimuth_deg": predicted_az, "predicted_elevation_deg": predicted_el,
-                         "error_deg": sun_compare.angle_between_deg(solved, predicted)})
+def sun_table(root: str, sha256: str) -> pd.DataFrame:
+    """Solved and predicted sun vector of every photocell sample
+    (:func:`estimators.sun_prediction.sun_vector_table`)."""
+    return sun_vector_table(stored_log(root, sha256))

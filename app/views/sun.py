@@ -27,7 +27,9 @@ st.caption(f"Device: side faces tilted {device.tilt_deg:g} deg at azimuths {azim
            f"yaw {mounting} deg.")
 
 with session.input_errors():
-    solution = adapters.sun_solution(root, sha256)
+    solution = adapters.sun_table(root, sha256)
+st.caption(f"The solver's sky-light model used the up vector of the {solution.attrs.get('up_reference', 'level')} "
+           "attitude ('level': none available).")
 states = sun_compare.cell_states(solution, device)
 solved = solution["status"] == "ok"
 columns = st.columns(4)
@@ -57,13 +59,15 @@ elif not sources:
 else:
     source = st.radio("Attitude for the prediction", sources, horizontal=True, key="sun_attitude",
                       format_func={"truth": "ground truth", "onboard": "onboard estimate"}.get)
-    prediction = adapters.sun_prediction(root, sha256, source)
-    frames = {"sun device": prediction.rename(columns=lambda c: c.replace("solved_", "")),
-              source: prediction.rename(columns=lambda c: c.replace("predicted_", ""))}
+    time_s = solution["time_s"].to_numpy(float)
+    frames = {}
+    for label, prefix in (("sun device", "sun"), (source, f"pred_{source}")):
+        azimuth, elevation = sun_compare.body_angles_deg(solution[[f"{prefix}_{a}" for a in "xyz"]].to_numpy(float))
+        frames[label] = pd.DataFrame({"time_s": time_s, "azimuth_deg": azimuth, "elevation_deg": elevation})
     st.plotly_chart(figures.quantity_figure(
         frames, [("azimuth_deg", "azimuth [deg]"), ("elevation_deg", "elevation [deg]")],
         title=f"Body-frame sun direction: photocells vs ephemeris + {source} attitude"), key="sun_angles")
-    error = prediction.set_index("time_s")["error_deg"].dropna()
+    error = solution.set_index("time_s")[f"angle_{source}_deg"].dropna()
     columns = st.columns(3)
     columns[0].metric("Median angle error", f"{error.median():.2f} deg")
     columns[1].metric("95th percentile", f"{error.quantile(0.95):.2f} deg")
