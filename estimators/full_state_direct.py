@@ -90,6 +90,8 @@ I_P = 0
 I_V = 3
 I_TH = 6
 I_BG = 9
+#: States with dynamics (position, body velocity, Euler angles) come first; the rest are random walks.
+N_DYNAMIC = 9
 # layout array slots: index of the first state of each optional block, -1 when absent
 L_BA = 0
 L_W = 1
@@ -218,20 +220,24 @@ def euler_matrices(phi, theta, psi, R, S, W):
 
 
 @njit(cache=True)
-def derivative(x, gyro, accel, g, layout, R, S, W, xdot):
-    """Continuous dynamics ``xdot = f(x, u)`` (corrected eq 36) for held IMU inputs ``gyro`` [rad/s],
-    ``accel`` [m/s^2] (body FRD)."""
-    euler_matrices(x[6], x[7], x[8], R, S, W)
-    om0, om1, om2 = gyro[0] - x[9], gyro[1] - x[10], gyro[2] - x[11]
+def corrected_inputs(x, gyro, accel, layout):
+    """Bias-corrected IMU input ``(omega_hat, f_hat)`` as six floats: ``gyro - b_g`` [rad/s], ``accel - b_a``
+    [m/s^2] (body FRD; ``b_a = 0`` without accelerometer-bias states)."""
     f0, f1, f2 = accel[0], accel[1], accel[2]
     iba = layout[L_BA]
     if iba >= 0:
         f0 -= x[iba]
         f1 -= x[iba + 1]
         f2 -= x[iba + 2]
+    return gyro[0] - x[9], gyro[1] - x[10], gyro[2] - x[11], f0, f1, f2
+
+
+@njit(cache=True)
+def dynamics(x, om0, om1, om2, f0, f1, f2, g, R, S, W, xdot):
+    """Derivatives of the :data:`N_DYNAMIC` states with dynamics (position, body velocity, Euler angles) for
+    the bias-corrected inputs (:func:`corrected_inputs`); reads ``x[:9]``, writes ``xdot[:9]`` only."""
+    euler_matrices(x[6], x[7], x[8], R, S, W)
     u, v, w = x[3], x[4], x[5]
-    for i in range(x.shape[0]):
-        xdot[i] = 0.0
     for i in range(3):
         xdot[i] = R[i, 0] * u + R[i, 1] * v + R[i, 2] * w
     xdot[3] = v * om2 - w * om1 + f0 + g * R[2, 0]
@@ -239,6 +245,16 @@ def derivative(x, gyro, accel, g, layout, R, S, W, xdot):
     xdot[5] = u * om1 - v * om0 + f2 + g * R[2, 2]
     for i in range(3):
         xdot[6 + i] = S[i, 0] * om0 + S[i, 1] * om1 + S[i, 2] * om2
+
+
+@njit(cache=True)
+def derivative(x, gyro, accel, g, layout, R, S, W, xdot):
+    """Continuous dynamics ``xdot = f(x, u)`` (corrected eq 36) for held IMU inputs ``gyro`` [rad/s],
+    ``accel`` [m/s^2] (body FRD); the bias, wind and offset states are random walks (zero derivative)."""
+    for i in range(x.shape[0]):
+        xdot[i] = 0.0
+    om0, om1, om2, f0, f1, f2 = corrected_inputs(x, gyro, accel, layout)
+    dynamics(x, om0, om1, om2, f0, f1, f2, g, R, S, W, xdot)
 
 
 @njit(cache=True)
@@ -315,26 +331,19 @@ def process_noise(x, ng2, na2, rw_var, dt, R, S, W, Qd):
     for i in range(n):
         Qd[i, i] = rw_var[i] * dt
     u, v, w = x[3], x[4], x[5]
-    # [V]x
-    vx = np.empty((3, 3))
-    vx[0, 0] = 0.0
-    vx[0, 1] = -w
-    vx[0, 2] = v
-    vx[1, 0] = w
-    vx[1, 1] = 0.0
-    vx[1, 2] = -u
-    vx[2, 0] = -v
-    vx[2, 1] = u
-    vx[2, 2] = 0.0
+    vv2 = u * u + v * v + w * w
     for i in range(3):
+        vi = x[3 + i]
         for j in range(3):
-            vv = 0.0
-            vt = 0.0
-            tt = 0.0
-            for k in range(3):
-                vv += vx[i, k] * vx[j, k]
-                vt += vx[i, k] * S[j, k]
-                tt += S[i, k] * S[j, k]
+            # [V]x [V]x^T = |V|^2 I - V V^T; column j of [V]x S^T = V x S[j, :]
+            vv = (vv2 if i == j else 0.0) - vi * x[3 + j]
+            if i == 0:
+                vt = v * S[j, 2] - w * S[j, 1]
+            elif i == 1:
+                vt = w * S[j, 0] - u * S[j, 2]
+            else:
+                vt = u * S[j, 1] - v * S[j, 0]
+            tt = S[i, 0] * S[j, 0] + S[i, 1] * S[j, 1] + S[i, 2] * S[j, 2]
             Qd[3 + i, 3 + j] = (ng2 * vv + (na2 if i == j else 0.0) + (rw_var[3 + i] if i == j else 0.0)) * dt
             Qd[3 + i, 6 + j] = ng2 * vt * dt
             Qd[6 + j, 3 + i] = ng2 * vt * dt
@@ -449,19 +458,23 @@ def measurement(x, kind, comp, values, field, layout, R, S, W, H):
 
 @njit(cache=True)
 def propagate_state(x, gyro, accel, dt, g, layout, R, S, W, k1, k2, k3, k4, xt):
-    """RK4 step of the state over ``dt`` [s] with the IMU input held; roll and yaw wrapped to [-pi, pi)."""
-    n = x.shape[0]
-    derivative(x, gyro, accel, g, layout, R, S, W, k1)
-    for i in range(n):
+    """RK4 step of the state over ``dt`` [s] with the IMU input held; roll and yaw wrapped to [-pi, pi).
+
+    Only the :data:`N_DYNAMIC` states with dynamics are integrated (the others have zero derivative, so RK4
+    leaves them unchanged exactly) and the bias-corrected input is formed once: the biases are constant over the
+    step."""
+    om0, om1, om2, f0, f1, f2 = corrected_inputs(x, gyro, accel, layout)
+    dynamics(x, om0, om1, om2, f0, f1, f2, g, R, S, W, k1)
+    for i in range(N_DYNAMIC):
         xt[i] = x[i] + 0.5 * dt * k1[i]
-    derivative(xt, gyro, accel, g, layout, R, S, W, k2)
-    for i in range(n):
+    dynamics(xt, om0, om1, om2, f0, f1, f2, g, R, S, W, k2)
+    for i in range(N_DYNAMIC):
         xt[i] = x[i] + 0.5 * dt * k2[i]
-    derivative(xt, gyro, accel, g, layout, R, S, W, k3)
-    for i in range(n):
+    dynamics(xt, om0, om1, om2, f0, f1, f2, g, R, S, W, k3)
+    for i in range(N_DYNAMIC):
         xt[i] = x[i] + dt * k3[i]
-    derivative(xt, gyro, accel, g, layout, R, S, W, k4)
-    for i in range(n):
+    dynamics(xt, om0, om1, om2, f0, f1, f2, g, R, S, W, k4)
+    for i in range(N_DYNAMIC):
         x[i] += dt / 6.0 * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i])
     x[6] = ekf_core.wrap_pi(x[6])
     x[8] = ekf_core.wrap_pi(x[8])
