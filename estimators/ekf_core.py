@@ -5,8 +5,8 @@ nothing, so the filters' time loops can call it per sample without Python overhe
 (state layout, ``f``, ``A``, ``h``, ``H``); this module owns the generic EKF algebra:
 
 * :func:`transition_matrix` -- ``F = I + A dt + (A dt)^2 / 2`` from a continuous Jacobian ``A``.
-* :func:`propagate_covariance` -- ``P <- F P F^T + Qd`` exploiting that most rows of ``F - I`` are zero
-  (bias and wind states), then symmetrised.
+* :func:`propagate_covariance` -- ``P <- F P F^T + Qd`` exploiting that the rows of ``F`` after the states with
+  dynamics are identity rows (bias, wind and offset states: :func:`dynamic_rows`); exactly symmetric.
 * :func:`scalar_update` -- one scalar measurement in Joseph form with chi-square gating; returns the correction
   ``dx`` (the caller adds it and wraps angles, or injects it into a nominal state), the innovation variance
   ``S`` and the normalised innovation squared ``NIS = nu^2 / S``.
@@ -69,11 +69,24 @@ def symmetrize(P):
 
 
 @njit(cache=True)
+def dynamic_rows(M, identity):
+    """Number of leading rows ``m`` of ``M`` beyond which every row is a row of the identity (``identity``) or
+    zero: the filters put the states with dynamics first, the biases, wind and offsets (random walks) after."""
+    n = M.shape[0]
+    for i in range(n - 1, -1, -1):
+        for j in range(n):
+            if M[i, j] != (1.0 if identity and i == j else 0.0):
+                return i + 1
+    return 0
+
+
+@njit(cache=True)
 def transition_matrix(A, dt, F):
     """Second-order transition matrix ``F = I + A dt + (A dt)^2 / 2`` (math note 2.2), written into ``F``.
 
-    Rows of ``A`` that are zero (states without dynamics) give identity rows and are skipped, and so are the
-    zero rows of ``A`` in the product ``A A``.
+    Only the leading rows of ``A`` with dynamics (:func:`dynamic_rows`) are non-zero, so ``A A`` is
+    ``A[:, :m] A[:m, :]`` and the rows from ``m`` on are identity rows; the products are dense over that block
+    (no data-dependent branches in the inner loops).
 
     Parameters
     ----------
@@ -85,73 +98,52 @@ def transition_matrix(A, dt, F):
         Output.
     """
     n = A.shape[0]
+    m = dynamic_rows(A, False)
     half_dt2 = 0.5 * dt * dt
-    row_active = np.zeros(n, dtype=np.bool_)
-    for i in range(n):
-        for k in range(n):
-            if A[i, k] != 0.0:
-                row_active[i] = True
-                break
     for i in range(n):
         for j in range(n):
             F[i, j] = 0.0
         F[i, i] = 1.0
-        if not row_active[i]:
-            continue
-        for k in range(n):
-            a_ik = A[i, k]
-            if a_ik == 0.0:
-                continue
-            F[i, k] += a_ik * dt
-            if row_active[k]:
-                c = a_ik * half_dt2
-                for j in range(n):
-                    F[i, j] += c * A[k, j]
+    for i in range(m):
+        for j in range(n):
+            F[i, j] += A[i, j] * dt
+        for k in range(m):
+            c = A[i, k] * half_dt2
+            for j in range(n):
+                F[i, j] += c * A[k, j]
 
 
 @njit(cache=True)
-def propagate_covariance(P, F, Qd, work, active):
-    """``P <- F P F^T + Qd`` for a symmetric ``Qd``; ``P, F, Qd`` (n, n); ``work`` (n, n) and ``active`` (n,)
-    bool are scratch.
+def propagate_covariance(P, F, Qd, work):
+    """``P <- F P F^T + Qd`` for a symmetric ``Qd``; ``P, F, Qd`` (n, n); ``work`` (n, n) scratch.
 
-    With ``D = F - I``: ``F P F^T = P + D P + (D P)^T + D P D^T``; only the rows of ``D`` that are non-zero
-    (states with dynamics, ``active``) contribute, which is exact and several times cheaper for the filters'
-    sparse ``F``. ``D P`` is computed as ``F P - P`` on the active rows and ``D P D^T`` as ``(D P) F^T - D P`` on
-    the active block, so no copy of ``D`` is needed. The result is exactly symmetric.
+    The rows of ``F`` from ``m`` on (:func:`dynamic_rows`) are identity rows, so ``F P`` differs from ``P`` in
+    its first ``m`` rows only (``work``), ``F P F^T`` is ``work F^T`` on the leading ``m x m`` block, ``work``
+    on the off-diagonal blocks and ``P`` elsewhere: exact, and several times cheaper than the dense product for
+    the filters' random-walk states. The result is exactly symmetric.
     """
     n = P.shape[0]
-    for i in range(n):
-        row_active = False
+    m = dynamic_rows(F, True)
+    for i in range(m):
         for j in range(n):
-            if F[i, j] != (1.0 if i == j else 0.0):
-                row_active = True
-                break
-        active[i] = row_active
-    # work[i] = (D P)[i] = F[i] P - P[i] on active rows
-    for i in range(n):
-        if not active[i]:
-            continue
-        for j in range(n):
-            work[i, j] = -P[i, j]
+            work[i, j] = 0.0
         for k in range(n):
             f_ik = F[i, k]
-            if f_ik == 0.0:
-                continue
             for j in range(n):
                 work[i, j] += f_ik * P[k, j]
+    for i in range(m):
+        for j in range(i, m):
+            s = 0.0
+            for k in range(n):
+                s += work[i, k] * F[j, k]
+            P[i, j] = s
+            P[j, i] = s
+        for j in range(m, n):
+            P[i, j] = work[i, j]
+            P[j, i] = work[i, j]
     for i in range(n):
-        a_i = active[i]
         for j in range(i, n):
             v = P[i, j] + Qd[i, j]
-            if a_i:
-                v += work[i, j]
-            if active[j]:
-                v += work[j, i]
-                if a_i:
-                    s = -work[i, j]
-                    for k in range(n):
-                        s += work[i, k] * F[j, k]
-                    v += s
             P[i, j] = v
             P[j, i] = v
 

@@ -519,7 +519,7 @@ def scalar_innovation(kind, comp, values, variances, h):
 
 
 @njit(cache=True)
-def _flush_covariance(P, x_cov, acc, g, params, layout, rw_var, min_var, max_var, R, S, W, A, F, Qc, work, active,
+def _flush_covariance(P, x_cov, acc, g, params, layout, rw_var, min_var, max_var, R, S, W, A, F, Qc, work,
                       counters):
     """Propagate P over the accumulated interval ``acc[0]`` with the mean inputs ``acc[1:7] / acc[0]``."""
     dt = acc[0]
@@ -527,7 +527,7 @@ def _flush_covariance(P, x_cov, acc, g, params, layout, rw_var, min_var, max_var
     jacobian(x_cov, mean_gyro, g, layout, R, S, W, A)
     ekf_core.transition_matrix(A, dt, F)
     process_noise(x_cov, params[P_NG2], params[P_NA2], rw_var, dt, R, S, W, Qc)
-    ekf_core.propagate_covariance(P, F, Qc, work, active)
+    ekf_core.propagate_covariance(P, F, Qc, work)
     counters[C_FLUSHES] += 1
     if ekf_core.scheduled_repair(P, min_var, max_var, work, EIG_FLOOR, counters[C_FLUSHES], PD_CHECK_EVERY):
         counters[C_REPAIRS] += 1
@@ -574,7 +574,6 @@ def run_kernel(imu_t, imu_gyro, imu_accel, ev_t, ev_kind, ev_imu, ev_val, ev_var
     F = np.empty((n, n))
     Qc = np.zeros((n, n))
     work = np.empty((n, n))
-    active = np.empty(n, dtype=np.bool_)
     H = np.empty(n)
     H3 = np.empty((3, n))
     dx = np.empty(n)
@@ -615,7 +614,7 @@ def run_kernel(imu_t, imu_gyro, imu_accel, ev_t, ev_kind, ev_imu, ev_val, ev_var
                 t = t_next
                 if acc[0] >= cov_dt * (1.0 - 1e-9):
                     _flush_covariance(P, x_cov, acc, g, params, layout, rw_var, min_var, max_var, R, S, W, A, F,
-                                      Qc, work, active, counters)
+                                      Qc, work, counters)
                     if not ekf_core.is_healthy(x, P):
                         ekf_core.reset_filter(x, P, x_safe, P0)
                         counters[C_RESETS] += 1
@@ -712,7 +711,7 @@ def run_kernel(imu_t, imu_gyro, imu_accel, ev_t, ev_kind, ev_imu, ev_val, ev_var
             j += 1
     if acc[0] > 0.0:
         _flush_covariance(P, x_cov, acc, g, params, layout, rw_var, min_var, max_var, R, S, W, A, F, Qc, work,
-                          active, counters)
+                          counters)
     counters[C_OUTPUTS] = n_out
     return x, P
 

@@ -407,7 +407,7 @@ def _flush_stage1(acc, x1_start, P1, prm, F1, Q1, W1, A1):
         for j in range(2):
             Q1[i, j] = prm.qc1[i, j] * dt
     _add_input_noise(stage1_G(x1_start), prm.gyro_psd, dt, Q1)
-    ekf_core.propagate_covariance(P1, F1, Q1, W1, A1)
+    ekf_core.propagate_covariance(P1, F1, Q1, W1)
     acc[:] = 0.0
 
 
@@ -436,7 +436,7 @@ def _flush_stage3(acc, x3_start, attitude_start, P1, P2, P3, prm, F3, Q3, W3, A3
         velocity_var = prm.accel_psd * dt + prm.gravity_m_s2 ** 2 * max(P1[0, 0], P1[1, 1]) * dt * dt
         Q3[2, 2] += velocity_var
         Q3[3, 3] += velocity_var
-    ekf_core.propagate_covariance(P3, F3, Q3, W3, A3)
+    ekf_core.propagate_covariance(P3, F3, Q3, W3)
     acc[:] = 0.0
 
 

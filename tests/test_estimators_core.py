@@ -20,25 +20,31 @@ def _random_spd(rng, n):
     return a @ a.T + n * np.eye(n)
 
 
-def test_transition_matrix_is_second_order_series():
+# rows with dynamics: a leading block (the filters' layout), one in the middle of random walks, all, none
+DYNAMIC_ROWS = ([0, 1, 2, 3], [0, 1, 3, 5], list(range(9)), [])
+
+
+@pytest.mark.parametrize("rows", DYNAMIC_ROWS)
+def test_transition_matrix_is_second_order_series(rows):
     rng = np.random.default_rng(1)
-    A = rng.normal(size=(7, 7))
-    A[4:] = 0.0
+    A = np.zeros((9, 9))
+    A[rows] = rng.normal(size=(len(rows), 9))
     F = np.empty_like(A)
     ekf_core.transition_matrix(A, 0.01, F)
-    expected = np.eye(7) + A * 0.01 + (A @ A) * 0.01 ** 2 / 2
+    expected = np.eye(9) + A * 0.01 + (A @ A) * 0.01 ** 2 / 2
     np.testing.assert_allclose(F, expected, rtol=0, atol=1e-15)
 
 
-def test_propagate_covariance_equals_dense_form():
+@pytest.mark.parametrize("rows", DYNAMIC_ROWS)
+def test_propagate_covariance_equals_dense_form(rows):
     rng = np.random.default_rng(2)
     n = 9
     P = _random_spd(rng, n)
     F = np.eye(n)
-    F[:4] += 0.05 * rng.normal(size=(4, n))  # rows 4.. without dynamics, as bias states
-    Qd = np.diag(rng.uniform(0, 1e-3, n))
+    F[rows] += 0.05 * rng.normal(size=(len(rows), n))  # the other rows without dynamics, as bias states
+    Qd = 1e-3 * _random_spd(rng, n)
     expected = F @ P @ F.T + Qd
-    ekf_core.propagate_covariance(P, F, Qd, np.empty((n, n)), np.empty(n, dtype=bool))
+    ekf_core.propagate_covariance(P, F, Qd, np.empty((n, n)))
     np.testing.assert_allclose(P, expected, rtol=1e-13, atol=1e-13)
     assert np.array_equal(P, P.T)
 
