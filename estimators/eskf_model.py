@@ -61,49 +61,15 @@ E_BM = 17
 E_BB = 20
 E_KZ = 21
 NE = 23
+#: Error states with dynamics (p, v, theta): the only rows of the transition that differ from the identity.
+N_DYNAMIC = E_BG
 
 _SMALL_ANGLE_RAD = 1e-6
 
-
 # ----------------------------------------------------------------------------------------------------------------
-# Rotation helpers (Hamilton quaternions, scalar first)
+# Rotation helpers (Hamilton quaternions, scalar first). Scalar in, scalars out: the time loop calls them per
+# sample, and a 3-vector or 3 x 3 array per call would cost a heap allocation each.
 # ----------------------------------------------------------------------------------------------------------------
-@njit(cache=True)
-def skew(v):
-    """Cross-product matrix [v]x with [v]x a = v x a, shape (3, 3)."""
-    out = np.empty((3, 3))
-    _skew_into(v[0], v[1], v[2], out)
-    return out
-
-
-@njit(cache=True)
-def quat_multiply(a, b):
-    """Hamilton product a (x) b of (w, x, y, z) quaternions."""
-    out = np.empty(4)
-    out[0] = a[0] * b[0] - a[1] * b[1] - a[2] * b[2] - a[3] * b[3]
-    out[1] = a[0] * b[1] + a[1] * b[0] + a[2] * b[3] - a[3] * b[2]
-    out[2] = a[0] * b[2] - a[1] * b[3] + a[2] * b[0] + a[3] * b[1]
-    out[3] = a[0] * b[3] + a[1] * b[2] - a[2] * b[1] + a[3] * b[0]
-    return out
-
-
-@njit(cache=True)
-def quat_exp(rotvec_rad):
-    """Unit quaternion Exp(phi) = (cos(|phi|/2), sin(|phi|/2) phi/|phi|) of a rotation vector [rad]."""
-    angle = np.sqrt(rotvec_rad[0] ** 2 + rotvec_rad[1] ** 2 + rotvec_rad[2] ** 2)
-    out = np.empty(4)
-    if angle < _SMALL_ANGLE_RAD:
-        out[0] = 1.0 - angle * angle / 8.0
-        scale = 0.5 - angle * angle / 48.0
-    else:
-        out[0] = np.cos(0.5 * angle)
-        scale = np.sin(0.5 * angle) / angle
-    out[1] = scale * rotvec_rad[0]
-    out[2] = scale * rotvec_rad[1]
-    out[3] = scale * rotvec_rad[2]
-    return out
-
-
 @njit(cache=True)
 def quat_to_dcm(q):
     """Rotation matrix R(q) (maps body vectors into NED for the attitude quaternion), shape (3, 3)."""
@@ -124,6 +90,40 @@ def _dcm_into(w, x, y, z, out):
     out[2, 0] = 2.0 * (x * z - w * y)
     out[2, 1] = 2.0 * (y * z + w * x)
     out[2, 2] = 1.0 - 2.0 * (x * x + y * y)
+
+
+@njit(cache=True)
+def rotate(w, x, y, z, vx, vy, vz):
+    """R(q) v for the unit quaternion q = (w, x, y, z): ``v + 2 w (u x v) + 2 u x (u x v)`` with ``u = (x, y, z)``
+    (pass the conjugate ``(w, -x, -y, -z)`` for ``R^T v``)."""
+    cx = y * vz - z * vy
+    cy = z * vx - x * vz
+    cz = x * vy - y * vx
+    return (vx + 2.0 * (w * cx + y * cz - z * cy),
+            vy + 2.0 * (w * cy + z * cx - x * cz),
+            vz + 2.0 * (w * cz + x * cy - y * cx))
+
+
+@njit(cache=True)
+def quat_exp(rx, ry, rz):
+    """Unit quaternion Exp(phi) = (cos(|phi|/2), sin(|phi|/2) phi/|phi|) of a rotation vector [rad], as (w, x, y, z)."""
+    angle = math.sqrt(rx * rx + ry * ry + rz * rz)
+    if angle < _SMALL_ANGLE_RAD:
+        w = 1.0 - angle * angle / 8.0
+        scale = 0.5 - angle * angle / 48.0
+    else:
+        w = math.cos(0.5 * angle)
+        scale = math.sin(0.5 * angle) / angle
+    return w, scale * rx, scale * ry, scale * rz
+
+
+@njit(cache=True)
+def quat_multiply(aw, ax, ay, az, bw, bx, by, bz):
+    """Hamilton product a (x) b of two quaternions given as scalars, as (w, x, y, z)."""
+    return (aw * bw - ax * bx - ay * by - az * bz,
+            aw * bx + ax * bw + ay * bz - az * by,
+            aw * by - ax * bz + ay * bw + az * bx,
+            aw * bz + ax * by - ay * bx + az * bw)
 
 
 @njit(cache=True)
@@ -173,28 +173,6 @@ def _skew_into(vx, vy, vz, out):
 
 
 @njit(cache=True)
-def _quat_exp_scalars(rx, ry, rz):
-    """Exp of a rotation vector [rad] as four scalars (w, x, y, z); allocation-free."""
-    angle = math.sqrt(rx * rx + ry * ry + rz * rz)
-    if angle < _SMALL_ANGLE_RAD:
-        w = 1.0 - angle * angle / 8.0
-        scale = 0.5 - angle * angle / 48.0
-    else:
-        w = math.cos(0.5 * angle)
-        scale = math.sin(0.5 * angle) / angle
-    return w, scale * rx, scale * ry, scale * rz
-
-
-@njit(cache=True)
-def _quat_mul_scalars(aw, ax, ay, az, bw, bx, by, bz):
-    """Hamilton product of two quaternions given as scalars."""
-    return (aw * bw - ax * bx - ay * by - az * bz,
-            aw * bx + ax * bw + ay * bz - az * by,
-            aw * by - ax * bz + ay * bw + az * bx,
-            aw * bz + ax * by - ay * bx + az * bw)
-
-
-@njit(cache=True)
 def propagate_nominal(x, gyro_rad_s, accel_m_s2, dt_s, gravity_m_s2):
     """Advance the nominal state over one IMU interval (allocation-free; the time loop calls it per sample).
 
@@ -215,19 +193,14 @@ def propagate_nominal(x, gyro_rad_s, accel_m_s2, dt_s, gravity_m_s2):
         Local gravity magnitude [m/s^2] (gravity points down, +NED z).
     """
     half = 0.5 * dt_s
-    hw, hx, hy, hz = _quat_exp_scalars((gyro_rad_s[0] - x[X_BG]) * half, (gyro_rad_s[1] - x[X_BG + 1]) * half,
-                                       (gyro_rad_s[2] - x[X_BG + 2]) * half)
-    mw, mx, my, mz = _quat_mul_scalars(x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3], hw, hx, hy, hz)
+    hw, hx, hy, hz = quat_exp((gyro_rad_s[0] - x[X_BG]) * half, (gyro_rad_s[1] - x[X_BG + 1]) * half,
+                              (gyro_rad_s[2] - x[X_BG + 2]) * half)
+    mw, mx, my, mz = quat_multiply(x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3], hw, hx, hy, hz)
     fx = accel_m_s2[0] - x[X_BA]
     fy = accel_m_s2[1] - x[X_BA + 1]
     fz = accel_m_s2[2] - x[X_BA + 2] - x[X_KZ] * fx - x[X_KZ + 1] * fy
-    # a = q_mid f q_mid* + g_n  (v' = v + 2 w (u x v) + 2 u x (u x v) for a unit quaternion (w, u))
-    cx = my * fz - mz * fy
-    cy = mz * fx - mx * fz
-    cz = mx * fy - my * fx
-    ax = fx + 2.0 * (mw * cx + my * cz - mz * cy)
-    ay = fy + 2.0 * (mw * cy + mz * cx - mx * cz)
-    az = fz + 2.0 * (mw * cz + mx * cy - my * cx) + gravity_m_s2
+    ax, ay, az = rotate(mw, mx, my, mz, fx, fy, fz)
+    az += gravity_m_s2
     half_dt2 = 0.5 * dt_s * dt_s
     x[X_P] += x[X_V] * dt_s + ax * half_dt2
     x[X_P + 1] += x[X_V + 1] * dt_s + ay * half_dt2
@@ -236,7 +209,7 @@ def propagate_nominal(x, gyro_rad_s, accel_m_s2, dt_s, gravity_m_s2):
     x[X_V + 1] += ay * dt_s
     x[X_V + 2] += az * dt_s
     # Exp(omega dt) = Exp(omega dt/2)^2, so q_new = q_mid (x) Exp(omega dt/2)
-    qw, qx, qy, qz = _quat_mul_scalars(mw, mx, my, mz, hw, hx, hy, hz)
+    qw, qx, qy, qz = quat_multiply(mw, mx, my, mz, hw, hx, hy, hz)
     norm = math.sqrt(qw * qw + qx * qx + qy * qy + qz * qz)
     x[X_Q] = qw / norm
     x[X_Q + 1] = qx / norm
@@ -245,7 +218,7 @@ def propagate_nominal(x, gyro_rad_s, accel_m_s2, dt_s, gravity_m_s2):
 
 
 @njit(cache=True)
-def transition(x, gyro_rad_s, accel_m_s2, dt_s, F):
+def transition(x, gyro_rad_s, accel_m_s2, dt_s, F, work):
     """Error-state transition matrix of one :func:`propagate_nominal` step, at the pre-step nominal ``x``.
 
     ``F`` is the exact first-order Jacobian of the discrete map with respect to the error at the start of the
@@ -254,9 +227,9 @@ def transition(x, gyro_rad_s, accel_m_s2, dt_s, F):
     ``a_theta = -R [R_h f]x``, ``a_bg = R_mid [f]x J_r(omega dt/2) dt/2``, ``a_ba = -R_mid K``,
     ``a_kz = -R_mid e_z (f_x, f_y)`` (``f = K (accel - b_a)``):
     ``F_pv = I dt``, ``F_p* = a_* dt^2/2``, ``F_v* = a_* dt``, ``F_thth = Exp(omega dt)^T``,
-    ``F_thbg = -J_r(omega dt) dt``; identity elsewhere. Input noise enters as the bias errors do
-    (``gyro = omega + b_g + n_g``), so the noise input matrices are the bias columns of ``F``
-    (:func:`process_noise`).
+    ``F_thbg = -J_r(omega dt) dt``; identity elsewhere. Only the first :data:`N_DYNAMIC` rows (p, v, theta)
+    differ from the identity. Input noise enters as the bias errors do (``gyro = omega + b_g + n_g``), so the
+    noise input matrices are the bias columns of ``F`` (:func:`process_noise`).
 
     Parameters
     ----------
@@ -269,6 +242,8 @@ def transition(x, gyro_rad_s, accel_m_s2, dt_s, F):
     F : ndarray (NE, NE)
         Output. Only the non-identity blocks are written; the caller keeps the rest at the identity
         (see :func:`identity_transition`).
+    work : ndarray (8, 3, 3)
+        Scratch (:func:`transition_work`).
     """
     wx = gyro_rad_s[0] - x[X_BG]
     wy = gyro_rad_s[1] - x[X_BG + 1]
@@ -278,35 +253,36 @@ def transition(x, gyro_rad_s, accel_m_s2, dt_s, F):
     kzx, kzy = x[X_KZ], x[X_KZ + 1]
     fz = accel_m_s2[2] - x[X_BA + 2] - kzx * fx - kzy * fy
     half = 0.5 * dt_s
-    work = np.empty((7, 3, 3))  # R, R_half, R_mid, Exp(omega dt), J_r(full), J_r(half), scratch
-    R, R_half, R_mid, R_full, J_full, J_half, tmp = (work[0], work[1], work[2], work[3], work[4], work[5],
-                                                      work[6])
-    _dcm_into(x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3], R)
-    hw, hx, hy, hz = _quat_exp_scalars(wx * half, wy * half, wz * half)
-    _dcm_into(hw, hx, hy, hz, R_half)
-    _matmul3_into(R, R_half, R_mid)
-    _dcm_into(*_quat_exp_scalars(wx * dt_s, wy * dt_s, wz * dt_s), R_full)
+    R, R_mid, R_full, J_full, J_half, f_cross, f_cross_J, a_bg = (work[0], work[1], work[2], work[3], work[4],
+                                                                  work[5], work[6], work[7])
+    qw, qx, qy, qz = x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3]
+    hw, hx, hy, hz = quat_exp(wx * half, wy * half, wz * half)
+    _dcm_into(qw, qx, qy, qz, R)
+    _dcm_into(*quat_multiply(qw, qx, qy, qz, hw, hx, hy, hz), R_mid)
+    _dcm_into(*quat_multiply(hw, hx, hy, hz, hw, hx, hy, hz), R_full)  # Exp(omega dt) = Exp(omega dt/2)^2
     right_jacobian_into(wx * dt_s, wy * dt_s, wz * dt_s, J_full)
     right_jacobian_into(wx * half, wy * half, wz * half, J_half)
-    # a_theta = -R [R_half f]x
-    yx = R_half[0, 0] * fx + R_half[0, 1] * fy + R_half[0, 2] * fz
-    yy = R_half[1, 0] * fx + R_half[1, 1] * fy + R_half[1, 2] * fz
-    yz = R_half[2, 0] * fx + R_half[2, 1] * fy + R_half[2, 2] * fz
-    _skew_into(yx, yy, yz, tmp)
-    a_th = np.empty((3, 3))
-    _matmul3_into(R, tmp, a_th)
-    # a_bg = R_mid [f]x J_r(half) dt/2 (R_half is no longer needed: reuse it as scratch)
-    _skew_into(fx, fy, fz, tmp)
-    _matmul3_into(tmp, J_half, R_half)
-    a_bg = np.empty((3, 3))
-    _matmul3_into(R_mid, R_half, a_bg)
+    yx, yy, yz = rotate(hw, hx, hy, hz, fx, fy, fz)  # y = R_half f; a_theta = -R [y]x, row i = -(R_i x y)
+    _skew_into(fx, fy, fz, f_cross)
+    _matmul3_into(f_cross, J_half, f_cross_J)
+    _matmul3_into(R_mid, f_cross_J, a_bg)  # a_bg = R_mid [f]x J_r(omega dt/2) (times dt/2 below)
     half_dt2 = 0.5 * dt_s * dt_s
     for i in range(3):
+        # a_theta row i = -(R_i x y) (R_i: row i of R)
+        a_th0 = R[i, 2] * yy - R[i, 1] * yz
+        a_th1 = R[i, 0] * yz - R[i, 2] * yx
+        a_th2 = R[i, 1] * yx - R[i, 0] * yy
         # a_ba = -R_mid K: K's third row (-k_zx, -k_zy, 1) mixes the x and y bias errors into f_z
         a_ba0 = -(R_mid[i, 0] - R_mid[i, 2] * kzx)
         a_ba1 = -(R_mid[i, 1] - R_mid[i, 2] * kzy)
         a_ba2 = -R_mid[i, 2]
         F[E_P + i, E_V + i] = dt_s
+        F[E_P + i, E_TH] = a_th0 * half_dt2
+        F[E_P + i, E_TH + 1] = a_th1 * half_dt2
+        F[E_P + i, E_TH + 2] = a_th2 * half_dt2
+        F[E_V + i, E_TH] = a_th0 * dt_s
+        F[E_V + i, E_TH + 1] = a_th1 * dt_s
+        F[E_V + i, E_TH + 2] = a_th2 * dt_s
         F[E_P + i, E_BA] = a_ba0 * half_dt2
         F[E_P + i, E_BA + 1] = a_ba1 * half_dt2
         F[E_P + i, E_BA + 2] = a_ba2 * half_dt2
@@ -318,9 +294,7 @@ def transition(x, gyro_rad_s, accel_m_s2, dt_s, F):
         F[E_V + i, E_KZ] = -R_mid[i, 2] * fx * dt_s
         F[E_V + i, E_KZ + 1] = -R_mid[i, 2] * fy * dt_s
         for j in range(3):
-            F[E_P + i, E_TH + j] = -a_th[i, j] * half_dt2
             F[E_P + i, E_BG + j] = a_bg[i, j] * half * half_dt2
-            F[E_V + i, E_TH + j] = -a_th[i, j] * dt_s
             F[E_V + i, E_BG + j] = a_bg[i, j] * half * dt_s
             F[E_TH + i, E_TH + j] = R_full[j, i]
             F[E_TH + i, E_BG + j] = -J_full[i, j] * dt_s
@@ -333,13 +307,20 @@ def identity_transition():
 
 
 @njit(cache=True)
-def process_noise(F, gyro_psd, accel_psd, random_walk_psd, dt_s, Q):
-    """Discrete process noise of one IMU interval.
+def transition_work():
+    """Scratch of :func:`transition`."""
+    return np.empty((8, 3, 3))
 
-    ``Q = F_bg diag(N_g^2 / dt) F_bg^T + F_ba diag(N_a^2 / dt) F_ba^T + diag(K^2) dt`` where ``F_bg``, ``F_ba``
-    are the gyro- and accelerometer-bias columns of ``F`` (white input noise enters exactly like a bias error),
-    ``N^2 / dt`` is the variance of one IMU sample averaged over ``dt`` (math note 2.2: N^2 dt = sigma^2 dt^2) and
-    ``K`` the random-walk densities.
+
+@njit(cache=True)
+def process_noise(F, gyro_psd, accel_psd, dt_s, Q_dyn):
+    """Discrete input noise of one IMU interval on the dynamic error states (p, v, theta).
+
+    ``Q_dyn = F_bg diag(N_g^2 / dt) F_bg^T + F_ba diag(N_a^2 / dt) F_ba^T`` over the first :data:`N_DYNAMIC` rows,
+    where ``F_bg``, ``F_ba`` are the gyro- and accelerometer-bias columns of ``F`` (white input noise enters
+    exactly like a bias error) and ``N^2 / dt`` is the variance of one IMU sample averaged over ``dt`` (math note
+    2.2: N^2 dt = sigma^2 dt^2). The rest of Q is the random walks ``diag(K^2) dt``, added by
+    :func:`propagate_covariance`.
 
     Parameters
     ----------
@@ -347,29 +328,67 @@ def process_noise(F, gyro_psd, accel_psd, random_walk_psd, dt_s, Q):
         Transition matrix of the interval (:func:`transition`).
     gyro_psd, accel_psd : ndarray (3,)
         Squared white-noise densities N^2 of the gyro [rad^2/s^2/Hz] and accelerometer [m^2/s^4/Hz].
-    random_walk_psd : ndarray (NE,)
-        Squared random-walk densities K^2 per error state [unit^2/s] (zero for p, v, theta).
     dt_s : float
         Interval [s].
-    Q : ndarray (NE, NE)
+    Q_dyn : ndarray (N_DYNAMIC, N_DYNAMIC)
         Output, overwritten.
     """
-    Q[:, :] = 0.0
-    for i in range(NE):
-        Q[i, i] = random_walk_psd[i] * dt_s
-    _add_input_noise(F, E_BG, gyro_psd / dt_s, Q)
-    _add_input_noise(F, E_BA, accel_psd / dt_s, Q)
+    for i in range(N_DYNAMIC):
+        for j in range(i, N_DYNAMIC):
+            q = 0.0
+            for k in range(3):
+                q += F[i, E_BG + k] * (gyro_psd[k] / dt_s) * F[j, E_BG + k]
+                q += F[i, E_BA + k] * (accel_psd[k] / dt_s) * F[j, E_BA + k]
+            Q_dyn[i, j] = q
+            Q_dyn[j, i] = q
 
 
 @njit(cache=True)
-def _add_input_noise(F, col0, var, Q):
-    """Q += F[:, col0:col0+3] diag(var) F[:, col0:col0+3]^T over the p, v, theta rows (the only non-zero ones)."""
-    for i in range(E_BG):
-        for j in range(E_BG):
-            acc = 0.0
-            for k in range(3):
-                acc += F[i, col0 + k] * var[k] * F[j, col0 + k]
-            Q[i, j] += acc
+def propagate_covariance(P, F_dyn, Q_dyn, walk_psd, dt_s, work):
+    """``P <- F P F^T + Q`` for the error-state transition, in place, exactly symmetric.
+
+    ``F`` is the identity except its first ``N_DYNAMIC`` rows ``F_dyn`` (p, v, theta lead the active states; the
+    biases, wind and offsets are random walks), ``Q`` is ``Q_dyn`` on the dynamic block plus ``diag(K^2) dt``.
+    With ``W = F_dyn P``: ``P_dd <- W F_dyn^T + Q_dyn``, ``P_ds <- W_s`` and ``P_ss <- P_ss + diag(K^2 dt)``, so the
+    static rows are never multiplied (the dense product costs about three times more).
+
+    Parameters
+    ----------
+    P : ndarray (n, n)
+        Error covariance over the active error states.
+    F_dyn : ndarray (N_DYNAMIC, n)
+        The dynamic rows of F over the active error states.
+    Q_dyn : ndarray (N_DYNAMIC, N_DYNAMIC)
+        Input noise (:func:`process_noise`).
+    walk_psd : ndarray (n,)
+        Squared random-walk densities K^2 of the active error states [unit^2/s].
+    dt_s : float
+        Interval [s].
+    work : ndarray (n, n)
+        Scratch (its first N_DYNAMIC rows hold ``W``).
+    """
+    nd, n = F_dyn.shape
+    W = work
+    for i in range(nd):
+        for j in range(n):
+            W[i, j] = 0.0
+        for k in range(n):
+            f_ik = F_dyn[i, k]
+            if f_ik != 0.0:  # F_dyn is sparse (zero wind, magnetometer and baro columns, theta rows)
+                for j in range(n):
+                    W[i, j] += f_ik * P[k, j]
+    for i in range(nd):
+        for j in range(i, nd):
+            s = Q_dyn[i, j]
+            for k in range(n):
+                s += W[i, k] * F_dyn[j, k]
+            P[i, j] = s
+            P[j, i] = s
+        for j in range(nd, n):
+            P[i, j] = W[i, j]
+            P[j, i] = W[i, j]
+    for i in range(n):
+        P[i, i] += walk_psd[i] * dt_s
 
 
 # ----------------------------------------------------------------------------------------------------------------
@@ -393,26 +412,40 @@ def inject(x, dx, P):
     x[X_BB] += dx[E_BB]
     x[X_KZ] += dx[E_KZ]
     x[X_KZ + 1] += dx[E_KZ + 1]
-    q = quat_multiply(x[X_Q:X_Q + 4], quat_exp(dx[E_TH:E_TH + 3]))
-    x[X_Q:X_Q + 4] = q / np.sqrt(np.sum(q * q))
-
-    G = np.eye(3) - 0.5 * skew(dx[E_TH:E_TH + 3])
+    qw, qx, qy, qz = quat_multiply(x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3],
+                                   *quat_exp(dx[E_TH], dx[E_TH + 1], dx[E_TH + 2]))
+    norm = math.sqrt(qw * qw + qx * qx + qy * qy + qz * qz)
+    x[X_Q] = qw / norm
+    x[X_Q + 1] = qx / norm
+    x[X_Q + 2] = qy / norm
+    x[X_Q + 3] = qz / norm
+    # G v = v - g x v with g = dtheta/2: first on the theta rows (G P), then on the theta columns (P G^T)
+    gx, gy, gz = 0.5 * dx[E_TH], 0.5 * dx[E_TH + 1], 0.5 * dx[E_TH + 2]
     n = P.shape[0]
-    block = np.empty(3)
-    for j in range(n):  # rows of the theta block: P[th, :] <- G P[th, :]
-        for i in range(3):
-            block[i] = G[i, 0] * P[E_TH, j] + G[i, 1] * P[E_TH + 1, j] + G[i, 2] * P[E_TH + 2, j]
-        P[E_TH:E_TH + 3, j] = block
-    for i in range(n):  # columns: P[:, th] <- P[:, th] G^T
-        for j in range(3):
-            block[j] = P[i, E_TH] * G[j, 0] + P[i, E_TH + 1] * G[j, 1] + P[i, E_TH + 2] * G[j, 2]
-        P[i, E_TH:E_TH + 3] = block
-    dx[:] = 0.0
+    for j in range(n):
+        a, b, c = P[E_TH, j], P[E_TH + 1, j], P[E_TH + 2, j]
+        P[E_TH, j] = a - (gy * c - gz * b)
+        P[E_TH + 1, j] = b - (gz * a - gx * c)
+        P[E_TH + 2, j] = c - (gx * b - gy * a)
+    for i in range(n):
+        a, b, c = P[i, E_TH], P[i, E_TH + 1], P[i, E_TH + 2]
+        P[i, E_TH] = a - (gy * c - gz * b)
+        P[i, E_TH + 1] = b - (gz * a - gx * c)
+        P[i, E_TH + 2] = c - (gx * b - gy * a)
+    for i in range(NE):
+        dx[i] = 0.0
 
 
 # ----------------------------------------------------------------------------------------------------------------
 # Measurement models: each returns h(x) and writes the row H = dh/d(dx) into ``H`` (length NE, zeroed first)
 # ----------------------------------------------------------------------------------------------------------------
+@njit(cache=True)
+def _ned_axis_in_body(x, axis):
+    """Row ``axis`` of R(q): the NED axis ``axis`` in body axes, ``R^T e_axis``."""
+    return rotate(x[X_Q], -x[X_Q + 1], -x[X_Q + 2], -x[X_Q + 3], 1.0 if axis == 0 else 0.0,
+                  1.0 if axis == 1 else 0.0, 1.0 if axis == 2 else 0.0)
+
+
 @njit(cache=True)
 def h_baro(x, H):
     """Barometric height above the origin [m]: ``h = -p_d + b_b`` (``b_b`` stays 0 when not estimated)."""
@@ -426,36 +459,42 @@ def h_baro(x, H):
 def h_gps_position(x, lever_arm_b_m, axis, H):
     """GPS antenna position [m] NED, component ``axis``: ``h = p + R l_b``.
 
-    ``H_dp = e_axis^T``, ``H_dtheta = -e_axis^T R [l_b]x``.
+    ``H_dp = e_axis^T``, ``H_dtheta = -e_axis^T R [l_b]x = (l_b x r)^T`` with ``r = R^T e_axis``.
     """
     H[:] = 0.0
-    R = quat_to_dcm(x[X_Q:X_Q + 4])
+    rx, ry, rz = _ned_axis_in_body(x, axis)
+    lx, ly, lz = lever_arm_b_m[0], lever_arm_b_m[1], lever_arm_b_m[2]
     H[E_P + axis] = 1.0
-    h_th = -(R @ skew(lever_arm_b_m))
-    for j in range(3):
-        H[E_TH + j] = h_th[axis, j]
-    return x[X_P + axis] + R[axis, 0] * lever_arm_b_m[0] + R[axis, 1] * lever_arm_b_m[1] \
-        + R[axis, 2] * lever_arm_b_m[2]
+    H[E_TH] = ly * rz - lz * ry
+    H[E_TH + 1] = lz * rx - lx * rz
+    H[E_TH + 2] = lx * ry - ly * rx
+    return x[X_P + axis] + rx * lx + ry * ly + rz * lz
 
 
 @njit(cache=True)
 def h_gps_velocity(x, gyro_rad_s, lever_arm_b_m, axis, H):
     """GPS antenna velocity [m/s] NED, component ``axis``: ``h = v + R (omega x l_b)``, ``omega = gyro - b_g``.
 
-    ``H_dv = e_axis^T``, ``H_dtheta = -e_axis^T R [omega x l_b]x``, ``H_dbg = e_axis^T R [l_b]x``.
+    With ``r = R^T e_axis`` and ``u = omega x l_b``: ``H_dv = e_axis^T``, ``H_dtheta = -e_axis^T R [u]x = (u x r)^T``,
+    ``H_dbg = e_axis^T R [l_b]x = (r x l_b)^T``.
     """
     H[:] = 0.0
-    R = quat_to_dcm(x[X_Q:X_Q + 4])
-    omega = gyro_rad_s - x[X_BG:X_BG + 3]
-    lever_velocity = np.cross(omega, lever_arm_b_m)
+    rx, ry, rz = _ned_axis_in_body(x, axis)
+    lx, ly, lz = lever_arm_b_m[0], lever_arm_b_m[1], lever_arm_b_m[2]
+    wx = gyro_rad_s[0] - x[X_BG]
+    wy = gyro_rad_s[1] - x[X_BG + 1]
+    wz = gyro_rad_s[2] - x[X_BG + 2]
+    ux = wy * lz - wz * ly
+    uy = wz * lx - wx * lz
+    uz = wx * ly - wy * lx
     H[E_V + axis] = 1.0
-    h_th = -(R @ skew(lever_velocity))
-    h_bg = R @ skew(lever_arm_b_m)
-    for j in range(3):
-        H[E_TH + j] = h_th[axis, j]
-        H[E_BG + j] = h_bg[axis, j]
-    return x[X_V + axis] + R[axis, 0] * lever_velocity[0] + R[axis, 1] * lever_velocity[1] \
-        + R[axis, 2] * lever_velocity[2]
+    H[E_TH] = uy * rz - uz * ry
+    H[E_TH + 1] = uz * rx - ux * rz
+    H[E_TH + 2] = ux * ry - uy * rx
+    H[E_BG] = ry * lz - rz * ly
+    H[E_BG + 1] = rz * lx - rx * lz
+    H[E_BG + 2] = rx * ly - ry * lx
+    return x[X_V + axis] + rx * ux + ry * uy + rz * uz
 
 
 @njit(cache=True)
@@ -465,7 +504,7 @@ def h_ground_speed(x, H):
     ``H_dv = (v_n, v_e, 0) / V_g``; zero row when ``V_g`` is ~0 (the caller skips such updates).
     """
     H[:] = 0.0
-    speed = np.hypot(x[X_V], x[X_V + 1])
+    speed = math.hypot(x[X_V], x[X_V + 1])
     if speed > 1e-3:
         H[E_V] = x[X_V] / speed
         H[E_V + 1] = x[X_V + 1] / speed
@@ -483,32 +522,24 @@ def h_course(x, H):
     if speed2 > 1e-6:
         H[E_V] = -x[X_V + 1] / speed2
         H[E_V + 1] = x[X_V] / speed2
-    return np.arctan2(x[X_V + 1], x[X_V])
-
-
-@njit(cache=True)
-def _air_velocity_ned(x):
-    """Air-relative velocity v - (w_n, w_e, 0) [m/s] NED (the wind has no vertical component)."""
-    air = x[X_V:X_V + 3].copy()
-    air[0] -= x[X_W]
-    air[1] -= x[X_W + 1]
-    return air
+    return math.atan2(x[X_V + 1], x[X_V])
 
 
 @njit(cache=True)
 def h_airspeed(x, H):
-    """True airspeed [m/s]: ``h = |v - w|`` (pitot aligned with the air flow).
+    """True airspeed [m/s]: ``h = |v - w|`` (pitot aligned with the air flow; the wind has no vertical component).
 
     ``H_dv = (v - w)^T / V_a``, ``H_dw = -(v - w)_{n,e}^T / V_a``; zero row when ``V_a`` is ~0.
     """
     H[:] = 0.0
-    air = _air_velocity_ned(x)
-    airspeed = np.sqrt(np.sum(air * air))
+    air_n, air_e, air_d = x[X_V] - x[X_W], x[X_V + 1] - x[X_W + 1], x[X_V + 2]
+    airspeed = math.sqrt(air_n * air_n + air_e * air_e + air_d * air_d)
     if airspeed > 1e-3:
-        for j in range(3):
-            H[E_V + j] = air[j] / airspeed
-        H[E_W] = -air[0] / airspeed
-        H[E_W + 1] = -air[1] / airspeed
+        H[E_V] = air_n / airspeed
+        H[E_V + 1] = air_e / airspeed
+        H[E_V + 2] = air_d / airspeed
+        H[E_W] = -air_n / airspeed
+        H[E_W + 1] = -air_e / airspeed
     return airspeed
 
 
@@ -519,18 +550,17 @@ def h_sideslip(x, H):
     ``H_dv = e2^T R^T``, ``H_dtheta = e2^T [R^T (v - w)]x``, ``H_dw = -e2^T R^T[:, 0:2]``.
     """
     H[:] = 0.0
-    R = quat_to_dcm(x[X_Q:X_Q + 4])
-    air_n, air_e, air_d = x[X_V] - x[X_W], x[X_V + 1] - x[X_W + 1], x[X_V + 2]
-    air_bx = R[0, 0] * air_n + R[1, 0] * air_e + R[2, 0] * air_d
-    air_by = R[0, 1] * air_n + R[1, 1] * air_e + R[2, 1] * air_d
-    air_bz = R[0, 2] * air_n + R[1, 2] * air_e + R[2, 2] * air_d
+    qw, qx, qy, qz = x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3]
+    air_bx, air_by, air_bz = rotate(qw, -qx, -qy, -qz, x[X_V] - x[X_W], x[X_V + 1] - x[X_W + 1], x[X_V + 2])
     # e2^T [a]x = (a_z, 0, -a_x).
     H[E_TH] = air_bz
     H[E_TH + 2] = -air_bx
-    for j in range(3):
-        H[E_V + j] = R[j, 1]
-    H[E_W] = -R[0, 1]
-    H[E_W + 1] = -R[1, 1]
+    r_n, r_e, r_d = rotate(qw, qx, qy, qz, 0.0, 1.0, 0.0)  # e2^T R^T = (R e2)^T
+    H[E_V] = r_n
+    H[E_V + 1] = r_e
+    H[E_V + 2] = r_d
+    H[E_W] = -r_n
+    H[E_W + 1] = -r_e
     return air_by
 
 
@@ -542,10 +572,7 @@ def h_body_vector(x, ref_ned, axis, with_mag_bias, H):
     ``H_dtheta = e_axis^T [R^T r_n]x``, ``H_dbm = e_axis^T`` with the bias.
     """
     H[:] = 0.0
-    R = quat_to_dcm(x[X_Q:X_Q + 4])
-    b0 = R[0, 0] * ref_ned[0] + R[1, 0] * ref_ned[1] + R[2, 0] * ref_ned[2]
-    b1 = R[0, 1] * ref_ned[0] + R[1, 1] * ref_ned[1] + R[2, 1] * ref_ned[2]
-    b2 = R[0, 2] * ref_ned[0] + R[1, 2] * ref_ned[1] + R[2, 2] * ref_ned[2]
+    b0, b1, b2 = rotate(x[X_Q], -x[X_Q + 1], -x[X_Q + 2], -x[X_Q + 3], ref_ned[0], ref_ned[1], ref_ned[2])
     # row ``axis`` of [b]x
     if axis == 0:
         H[E_TH + 1], H[E_TH + 2], value = -b2, b1, b0

@@ -105,6 +105,8 @@ GPS_LEVER_ARM_PARAMETERS = ("EKF2_GPS_POS_X", "EKF2_GPS_POS_Y", "EKF2_GPS_POS_Z"
 #: Columns of the kernel's per-epoch output (then the error-state std of the active states and the attitude
 #: error covariances xy, xz, yz).
 OUT_COLUMNS = ("time_s", *(f"x{i}" for i in range(m.NX)))
+#: Lever arm of the zero-velocity pseudo-measurement (the body origin) [m]; a global, compiled in as a constant.
+_NO_LEVER_M = np.zeros(3)
 #: Nominal-state names (report), in the order of :mod:`estimators.eskf_model`.
 NOMINAL_NAMES = ("pn", "pe", "pd", "vn", "ve", "vd", "qw", "qx", "qy", "qz", "bgx", "bgy", "bgz", "bax", "bay",
                  "baz", "wn", "we", "bmx", "bmy", "bmz", "bb", "kzx", "kzy")
@@ -202,31 +204,33 @@ def measurement(x, kind, comp, values, field, lever_b, gyro, H):
             return m.h_course(x, H)
         return m.h_gps_velocity(x, gyro, lever_b, comp, H)
     if kind == ZERO_VELOCITY:
-        return m.h_gps_velocity(x, gyro, np.zeros(3), comp, H)
+        return m.h_gps_velocity(x, gyro, _NO_LEVER_M, comp, H)
     if kind == MAG:
         return m.h_body_vector(x, field, comp, True, H)
     return m.h_body_vector(x, values[3:6], comp, False, H)
 
 
 @njit(cache=True)
-def _flush_covariance(P, x_cov, acc, imu_psd, rw_psd, sel, min_var, max_var, mean_input, F_full, Q_full, F, Q,
-                      work, active, counters):
+def _flush_covariance(P, x_cov, acc, imu_psd, walk_psd, sel, min_var, max_var, mean_input, F_full, F_work, F_dyn,
+                      Q_dyn, work, counters):
     """Propagate P over the accumulated interval ``acc[0]`` with the mean inputs ``acc[1:7] / acc[0]``, from the
-    nominal ``x_cov`` at its start; variance limits every time, the positive-definiteness repair every
-    ``PD_CHECK_EVERY`` propagations (as the direct filter). ``imu_psd`` (2, 3): squared gyro and accelerometer
-    noise densities; ``mean_input`` (2, 3) scratch."""
+    nominal ``x_cov`` at its start (:func:`estimators.eskf_model.propagate_covariance`); variance limits every
+    time, the positive-definiteness repair every ``PD_CHECK_EVERY`` propagations (as the direct filter).
+    ``imu_psd`` (2, 3): squared gyro and accelerometer noise densities; ``walk_psd`` (n,): squared random-walk
+    densities of the active states; ``mean_input`` (2, 3), ``F_work`` (:func:`estimators.eskf_model.transition_work`),
+    ``F_dyn`` (N_DYNAMIC, n), ``Q_dyn`` (N_DYNAMIC, N_DYNAMIC) and ``work`` (n, n) scratch; ``F_full`` the (NE, NE)
+    transition, kept at the identity off its blocks."""
     dt = acc[0]
     for i in range(3):
         mean_input[0, i] = acc[1 + i] / dt
         mean_input[1, i] = acc[4 + i] / dt
-    m.transition(x_cov, mean_input[0], mean_input[1], dt, F_full)
-    m.process_noise(F_full, imu_psd[0], imu_psd[1], rw_psd, dt, Q_full)
+    m.transition(x_cov, mean_input[0], mean_input[1], dt, F_full, F_work)
+    m.process_noise(F_full, imu_psd[0], imu_psd[1], dt, Q_dyn)
     n = sel.shape[0]
-    for a in range(n):
-        for b in range(n):
-            F[a, b] = F_full[sel[a], sel[b]]
-            Q[a, b] = Q_full[sel[a], sel[b]]
-    ekf_core.propagate_covariance(P, F, Q, work, active)
+    for i in range(m.N_DYNAMIC):
+        for a in range(n):
+            F_dyn[i, a] = F_full[i, sel[a]]
+    m.propagate_covariance(P, F_dyn, Q_dyn, walk_psd, dt, work)
     counters[C_FLUSHES] += 1
     if ekf_core.scheduled_repair(P, min_var, max_var, work, EIG_FLOOR, counters[C_FLUSHES], PD_CHECK_EVERY):
         counters[C_REPAIRS] += 1
@@ -344,11 +348,12 @@ def run_kernel(imu_t, imu_gyro, imu_accel, ev_t, ev_kind, ev_imu, ev_val, ev_var
     x_safe = x0.copy()
     x_cov = x0.copy()
     F_full = m.identity_transition()
-    Q_full = np.zeros((m.NE, m.NE))
-    F = np.empty((n, n))
-    Q = np.empty((n, n))
+    F_work = m.transition_work()
+    F_dyn = np.empty((m.N_DYNAMIC, n))
+    Q_dyn = np.empty((m.N_DYNAMIC, m.N_DYNAMIC))
+    walk_psd = rw_psd[sel]
+    T = np.empty((n, n))
     work = np.empty((n, n))
-    active = np.empty(n, dtype=np.bool_)
     H_full = np.zeros(m.NE)
     H3 = np.empty((3, m.NE))
     H = np.empty(n)
@@ -394,8 +399,8 @@ def run_kernel(imu_t, imu_gyro, imu_accel, ev_t, ev_kind, ev_imu, ev_val, ev_var
                 ekf_core.accumulate_inputs(acc, step, gyro, accel)
                 t = t_next
                 if acc[0] >= cov_dt * (1.0 - 1e-9):
-                    _flush_covariance(P, x_cov, acc, imu_psd, rw_psd, sel, min_var, max_var, mean_input, F_full,
-                                      Q_full, F, Q, work, active, counters)
+                    _flush_covariance(P, x_cov, acc, imu_psd, walk_psd, sel, min_var, max_var, mean_input, F_full,
+                                      F_work, F_dyn, Q_dyn, work, counters)
                     if not _healthy(x, P, zero_error):
                         _reset(x, P, x_safe, P0, counters)
             if not at_event:
@@ -420,8 +425,8 @@ def run_kernel(imu_t, imu_gyro, imu_accel, ev_t, ev_kind, ev_imu, ev_val, ev_var
             # measurements see the covariance brought up to their time (outputs report the last propagated one,
             # at most 1 / covariance_rate_hz old)
             if acc[0] > 0.0:
-                _flush_covariance(P, x_cov, acc, imu_psd, rw_psd, sel, min_var, max_var, mean_input, F_full, Q_full,
-                                  F, Q, work, active, counters)
+                _flush_covariance(P, x_cov, acc, imu_psd, walk_psd, sel, min_var, max_var, mean_input, F_full,
+                                  F_work, F_dyn, Q_dyn, work, counters)
             is_gps = kind in (GPS_POS, GPS_VEL)
             if is_gps:
                 # (re)acquisition (math note 2.3): position and velocity to the GPS, see reset_to_gps
@@ -429,7 +434,7 @@ def run_kernel(imu_t, imu_gyro, imu_accel, ev_t, ev_kind, ev_imu, ev_val, ev_var
                                                         params[P_GPS_OUTAGE_S])
                 if reset:
                     reset_to_gps(x, P, kind, values, ev_var[j], field, lever, gyro, sel, air_ok and wind_active,
-                                 H_full, block3, F, work)
+                                 H_full, block3, T, work)
                     if counted:
                         counters[C_GPS_RESETS] += 1
                     j += 1
@@ -475,8 +480,8 @@ def run_kernel(imu_t, imu_gyro, imu_accel, ev_t, ev_kind, ev_imu, ev_val, ev_var
                 m.inject(x, dx, P)
             j += 1
     if acc[0] > 0.0:
-        _flush_covariance(P, x_cov, acc, imu_psd, rw_psd, sel, min_var, max_var, mean_input, F_full, Q_full, F, Q,
-                          work, active, counters)
+        _flush_covariance(P, x_cov, acc, imu_psd, walk_psd, sel, min_var, max_var, mean_input, F_full, F_work,
+                          F_dyn, Q_dyn, work, counters)
     counters[C_OUTPUTS] = n_out
     return x, P
 

@@ -57,7 +57,7 @@ def boxminus(x1: np.ndarray, x0: np.ndarray) -> np.ndarray:
 def propagated(x: np.ndarray, gyro: np.ndarray, accel: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
     out = x.copy()
     F = m.identity_transition()
-    m.transition(x, gyro, accel, dt, F)
+    m.transition(x, gyro, accel, dt, F, m.transition_work())
     m.propagate_nominal(out, gyro, accel, dt, GRAVITY_M_S2)
     return out, F
 
@@ -87,18 +87,20 @@ def rng(request) -> np.random.Generator:
 
 def test_rotation_helpers_match_scipy(rng):
     rotvec = rng.normal(0.0, 1.0, 3)
-    q = m.quat_exp(rotvec)
+    q = np.array(m.quat_exp(*rotvec))
     expected = Rotation.from_rotvec(rotvec)
     np.testing.assert_allclose(m.quat_to_dcm(q), expected.as_matrix(), atol=1e-14)
     q2 = np.roll(Rotation.random(random_state=rng).as_quat(), 1)
-    product = m.quat_multiply(q2, q)
+    product = np.array(m.quat_multiply(*q2, *q))
     expected_product = Rotation.from_quat(np.roll(q2, -1)) * expected
     np.testing.assert_allclose(m.quat_to_dcm(product), expected_product.as_matrix(), atol=1e-14)
-    a, b = rng.normal(size=3), rng.normal(size=3)
-    np.testing.assert_allclose(m.skew(a) @ b, np.cross(a, b), atol=1e-15)
+    v = rng.normal(size=3)
+    r2 = Rotation.from_quat(np.roll(q2, -1))
+    np.testing.assert_allclose(m.rotate(*q2, *v), r2.apply(v), atol=1e-14)
+    np.testing.assert_allclose(m.rotate(q2[0], *-q2[1:], *v), r2.inv().apply(v), atol=1e-14)
     # Small-angle branch continuous with the closed form.
     tiny = np.array([3e-7, -2e-7, 1e-7])
-    np.testing.assert_allclose(m.quat_to_dcm(m.quat_exp(tiny)), Rotation.from_rotvec(tiny).as_matrix(),
+    np.testing.assert_allclose(m.quat_to_dcm(np.array(m.quat_exp(*tiny))), Rotation.from_rotvec(tiny).as_matrix(),
                                atol=1e-15)
 
 
@@ -173,13 +175,37 @@ def test_process_noise_is_input_noise_through_f(rng):
     assert_jacobian_close(G_analytic, G, rtol=1e-6)
     gyro_psd = np.array([1e-4, 2e-4, 3e-4]) ** 2
     accel_psd = np.array([1e-2, 2e-2, 4e-2]) ** 2
-    walk_psd = np.arange(m.NE) * 1e-6
-    Q = np.zeros((m.NE, m.NE))
-    m.process_noise(F, gyro_psd, accel_psd, walk_psd, dt, Q)
-    # A density N holds per-sample variance N^2 / dt.
+    Q_dyn = np.zeros((m.N_DYNAMIC, m.N_DYNAMIC))
+    m.process_noise(F, gyro_psd, accel_psd, dt, Q_dyn)
+    # A density N holds per-sample variance N^2 / dt; only the dynamic rows (p, v, theta) see the input noise.
     per_sample_var = np.concatenate([gyro_psd, accel_psd]) / dt
-    expected = G_analytic @ np.diag(per_sample_var) @ G_analytic.T + np.diag(walk_psd) * dt
-    np.testing.assert_allclose(Q, expected, rtol=1e-12, atol=1e-20)
+    expected = G_analytic @ np.diag(per_sample_var) @ G_analytic.T
+    np.testing.assert_allclose(Q_dyn, expected[:m.N_DYNAMIC, :m.N_DYNAMIC], rtol=1e-12, atol=1e-20)
+    assert not np.any(expected[m.N_DYNAMIC:]) and not np.any(expected[:, m.N_DYNAMIC:])
+
+
+@pytest.mark.parametrize("drop", [(), (m.E_W, m.E_W + 1, m.E_KZ + 1)])
+def test_covariance_propagation_is_f_p_ft_plus_q(rng, drop):
+    """The structured propagation (dynamic rows only) equals the dense F P F^T + Q over the active states."""
+    x = random_state(rng)
+    gyro = rng.normal(0.0, 1.0, 3)
+    accel = np.array([0.0, 0.0, -GRAVITY_M_S2]) + rng.normal(0.0, 2.0, 3)
+    dt = 0.01
+    _, F = propagated(x, gyro, accel, dt)
+    Q_dyn = np.zeros((m.N_DYNAMIC, m.N_DYNAMIC))
+    m.process_noise(F, np.full(3, 1e-6), np.full(3, 1e-3), dt, Q_dyn)
+    walk_psd = rng.uniform(0.0, 1e-4, m.NE)
+    sel = np.array([i for i in range(m.NE) if i not in drop])
+    root = rng.normal(size=(len(sel), len(sel)))
+    P = root @ root.T
+    Q = np.diag(walk_psd * dt)
+    Q[:m.N_DYNAMIC, :m.N_DYNAMIC] += Q_dyn
+    Fs = F[np.ix_(sel, sel)]
+    expected = Fs @ P @ Fs.T + Q[np.ix_(sel, sel)]
+    m.propagate_covariance(P, np.ascontiguousarray(F[:m.N_DYNAMIC, sel]), Q_dyn, walk_psd[sel], dt,
+                           np.empty_like(P))
+    np.testing.assert_allclose(P, expected, rtol=1e-12, atol=1e-12)
+    np.testing.assert_array_equal(P, P.T)
 
 
 def test_injection_covariance_reset(rng):
