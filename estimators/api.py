@@ -135,20 +135,32 @@ def run_estimators(flight_log: FlightLog, *, estimators: str | Sequence[str] = D
     inputs = build_replay_inputs(flight_log, config, rate_hz=rate_hz, heading=heading,
                                  sun_observations=sun_observations)
     prepare_s = time.perf_counter() - started
-    states, diagnostics, reports = [], [], {}
+    runs, reports = [], {}
     for name, function in functions.items():
         run = function(flight_log, inputs, config)
-        timings = {"prepare": prepare_s, **run.report.timings_s}
-        reports[name] = _with_timings(run.report, timings)
-        label = pd.Categorical.from_codes(np.full(len(run.states), len(states)), categories=list(names))
-        states.append(run.states.assign(estimator=label))
-        label = pd.Categorical.from_codes(np.full(len(run.diagnostics), len(diagnostics)), categories=list(names))
-        diagnostics.append(run.diagnostics.assign(estimator=label))
-    state_frame = pd.concat(states, ignore_index=True)
-    extra = [c for c in state_frame.columns if c not in STATE_COLUMNS]
-    state_frame = state_frame.loc[:, [*STATE_COLUMNS, *extra]]
-    diagnostic_frame = pd.concat(diagnostics, ignore_index=True).loc[:, list(DIAGNOSTIC_COLUMNS)]
-    return ReplayResult(states=state_frame, diagnostics=diagnostic_frame, reports=reports)
+        reports[name] = _with_timings(run.report, {"prepare": prepare_s, **run.report.timings_s})
+        runs.append(run)
+    state_columns = dict.fromkeys(column for run in runs for column in run.states.columns)
+    extra = [column for column in state_columns if column not in STATE_COLUMNS]
+    states = _stacked(names, [run.states for run in runs], (*STATE_COLUMNS[1:], *extra))
+    diagnostics = _stacked(names, [run.diagnostics for run in runs], DIAGNOSTIC_COLUMNS[1:])
+    return ReplayResult(states=states, diagnostics=diagnostics, reports=reports)
+
+
+def _stacked(names: tuple[str, ...], frames: list[pd.DataFrame], columns: Sequence[str]) -> pd.DataFrame:
+    """The estimators' tables one below the other, led by the categorical ``estimator`` column.
+
+    Built column by column, so every value is copied once (no frame-wide concatenation and reordering); a column
+    an estimator lacks is NaN in its rows.
+    """
+    lengths = [len(frame) for frame in frames]
+    codes = np.repeat(np.arange(len(names), dtype=np.int8), lengths)
+    table = {"estimator": pd.Categorical.from_codes(codes, categories=list(names))}
+    for column in columns:
+        parts = [frame[column] if column in frame.columns else pd.Series(np.nan, index=frame.index)
+                 for frame in frames]
+        table[column] = pd.concat(parts, ignore_index=True)
+    return pd.DataFrame(table, copy=False)
 
 
 def _with_timings(report: EstimatorReport, timings: dict[str, float]) -> EstimatorReport:

@@ -215,14 +215,16 @@ def states_frame(time_s, roll_rad, pitch_rad, yaw_rad, position_ned_m, velocity_
         frame[name] = nan if blank else np.asarray(values, dtype=float).reshape(k)
     # a yaw that wrapped to exactly 180.0 by rounding
     frame["yaw_deg"] = np.where(frame["yaw_deg"] >= 180.0, frame["yaw_deg"] - 360.0, frame["yaw_deg"])
-    return pd.DataFrame(frame)
+    return pd.DataFrame(frame, copy=False)
 
 
 def diagnostics_frame(diag_f: np.ndarray, diag_i: np.ndarray, count: int) -> pd.DataFrame:
     """The diagnostics table from the kernels' recorder arrays (see :mod:`estimators.ekf_core`).
 
     ``sensor`` and ``component`` become categorical names (:data:`DIAGNOSTIC_SENSOR_NAMES`,
-    :data:`DIAGNOSTIC_COMPONENT_NAMES`; the same categories for every estimator), ``accepted`` a bool.
+    :data:`DIAGNOSTIC_COMPONENT_NAMES`; the same categories for every estimator), ``accepted`` a bool. The float
+    columns are views of ``diag_f`` (no copy: :func:`estimators.api.run_estimators` copies each column once when it
+    stacks the estimators).
     """
     diag_f, diag_i = diag_f[:count], diag_i[:count]
     sensor_codes = diag_i[:, 0]
@@ -235,7 +237,7 @@ def diagnostics_frame(diag_f: np.ndarray, diag_i: np.ndarray, count: int) -> pd.
         "innovation_var": diag_f[:, 2],
         "nis": diag_f[:, 3],
         "accepted": diag_i[:, 2].astype(bool),
-    })
+    }, copy=False)
 
 
 #: Every component name, the categories of the diagnostics' ``component`` column.

@@ -38,11 +38,13 @@ def ned_to_geodetic(north_m, east_m, down_m, lat0_deg, lon0_deg, alt0_m):
     :func:`geodetic_to_ned`).
 
     North/east are tangent-plane coordinates of the point at its own altitude, so the tangent-plane down
-    coordinate (altitude plus earth curvature) is found by fixed-point iteration; two passes reach < 1 mm at 10 km.
+    coordinate (altitude plus earth curvature) is found by fixed-point iteration; two passes reach < 1 mm at 10 km,
+    the third refines latitude and longitude.
     """
     alt_m = alt0_m - np.asarray(down_m, dtype=float)
     tangent_down_m = -(alt_m - alt0_m)
-    for _ in range(3):
+    for _ in range(2):
         lat, lon, _ = pymap3d.ned2geodetic(north_m, east_m, tangent_down_m, lat0_deg, lon0_deg, alt0_m)
         _, _, tangent_down_m = pymap3d.geodetic2ned(lat, lon, alt_m, lat0_deg, lon0_deg, alt0_m)
+    lat, lon, _ = pymap3d.ned2geodetic(north_m, east_m, tangent_down_m, lat0_deg, lon0_deg, alt0_m)
     return np.asarray(lat), np.asarray(lon), alt_m
