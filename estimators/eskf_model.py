@@ -333,12 +333,14 @@ def process_noise(F, gyro_psd, accel_psd, dt_s, Q_dyn):
     Q_dyn : ndarray (N_DYNAMIC, N_DYNAMIC)
         Output, overwritten.
     """
+    gyro_var = (gyro_psd[0] / dt_s, gyro_psd[1] / dt_s, gyro_psd[2] / dt_s)  # divisions out of the loops
+    accel_var = (accel_psd[0] / dt_s, accel_psd[1] / dt_s, accel_psd[2] / dt_s)
     for i in range(N_DYNAMIC):
         for j in range(i, N_DYNAMIC):
             q = 0.0
             for k in range(3):
-                q += F[i, E_BG + k] * (gyro_psd[k] / dt_s) * F[j, E_BG + k]
-                q += F[i, E_BA + k] * (accel_psd[k] / dt_s) * F[j, E_BA + k]
+                q += F[i, E_BG + k] * gyro_var[k] * F[j, E_BG + k]
+                q += F[i, E_BA + k] * accel_var[k] * F[j, E_BA + k]
             Q_dyn[i, j] = q
             Q_dyn[j, i] = q
 
