@@ -740,8 +740,11 @@ def _airborne(times: np.ndarray, airspeed, gps: _GpsRows | None, config: Estimat
 
 
 def _merge_events(parts, imu_time_s: np.ndarray) -> MeasurementEvents:
-    times = [p[0] for p in parts]
-    time_s = np.concatenate(times) if times else np.zeros(0)
+    """One time-sorted event table from ``(time_s, kind, values, variances)`` parts; equal times in kind order."""
+    # parts in kind order, so a stable sort by time alone keeps equal times in kind order (each part's own order
+    # after that), and the sort merges a few already sorted runs
+    parts = sorted(parts, key=lambda part: part[1])
+    time_s = np.concatenate([p[0] for p in parts])
     kind = np.concatenate([np.full(len(p[0]), p[1], dtype=np.int64) for p in parts])
     values = np.zeros((len(time_s), N_EVENT_VALUES))
     variances = np.zeros((len(time_s), N_EVENT_VALUES))
@@ -751,13 +754,12 @@ def _merge_events(parts, imu_time_s: np.ndarray) -> MeasurementEvents:
         values[row:row + n, :v.shape[1]] = v
         variances[row:row + n, :r.shape[1]] = r
         row += n
-    inside = (time_s >= imu_time_s[0]) & (time_s <= imu_time_s[-1])
-    order = np.lexsort((kind[inside], time_s[inside]))
-    time_s, kind = time_s[inside][order], kind[inside][order]
-    values, variances = values[inside][order], variances[inside][order]
+    inside = np.flatnonzero((time_s >= imu_time_s[0]) & (time_s <= imu_time_s[-1]))
+    order = inside[np.argsort(time_s[inside], kind="stable")]
+    time_s = time_s[order]
     imu_index = np.searchsorted(imu_time_s, time_s, side="left").astype(np.int64)
-    return MeasurementEvents(time_s=np.ascontiguousarray(time_s), kind=kind, imu_index=imu_index,
-                             values=np.ascontiguousarray(values), variances=np.ascontiguousarray(variances))
+    return MeasurementEvents(time_s=time_s, kind=kind[order], imu_index=imu_index, values=values[order],
+                             variances=variances[order])
 
 
 # ----------------------------------------------------------------------------------------------------------------
@@ -774,30 +776,44 @@ def still_window(imu: ImuSamples, gravity_m_s2: float, config: EstimatorConfig) 
     least ``timing.still_window_s``.
     """
     timing = config.timing
-    n_avg = max(1, round(0.2 / imu.median_dt_s))
-    kernel = np.ones(n_avg) / n_avg
-    gyro = np.column_stack([np.convolve(imu.gyro_rad_s[:, i], kernel, mode="same") for i in range(3)])
-    accel = np.column_stack([np.convolve(imu.accel_m_s2[:, i], kernel, mode="same") for i in range(3)])
-    # the edges of the moving average see zero padding
-    half = min(n_avg // 2, len(gyro) - 1)
-    gyro[:half], accel[:half] = gyro[half], accel[half]
-    gyro[len(gyro) - half:], accel[len(accel) - half:] = gyro[-half - 1], accel[-half - 1]
     t = imu.time_s
-    norm = np.linalg.norm(accel, axis=1)
-    reference = float(np.median(norm[t <= t[0] + 1.0]))
-    if abs(reference - gravity_m_s2) > STILL_GRAVITY_TOLERANCE_M_S2:
-        return None
-    still = ((np.linalg.norm(gyro, axis=1) < timing.still_gyro_rad_s)
-             & (np.abs(norm - reference) < timing.still_accel_m_s2))
-    start_candidates = np.flatnonzero(still & (t <= t[0] + 1.0))
-    if len(start_candidates) == 0:
-        return None
-    i0 = int(start_candidates[0])
-    moving = np.flatnonzero(~still[i0:])
+    n_avg = min(max(1, round(0.2 / imu.median_dt_s)), len(t))
+    first_second = int(np.searchsorted(t, t[0] + 1.0, side="right"))
+    # The test runs on growing prefixes of the log: the window ends at the first moving row, usually seconds after
+    # the start. A prefix's last n_avg rows are left to the next, longer prefix (their averages need later rows).
+    rows = min(len(t), first_second + 2 * n_avg)
+    while True:
+        gyro_norm = np.linalg.norm(_moving_average(imu.gyro_rad_s[:rows], n_avg), axis=1)
+        accel_norm = np.linalg.norm(_moving_average(imu.accel_m_s2[:rows], n_avg), axis=1)
+        reference = float(np.median(accel_norm[:first_second]))
+        if abs(reference - gravity_m_s2) > STILL_GRAVITY_TOLERANCE_M_S2:
+            return None
+        still = (gyro_norm < timing.still_gyro_rad_s) & (np.abs(accel_norm - reference) < timing.still_accel_m_s2)
+        if rows < len(t):
+            still = still[:rows - n_avg]
+        start_candidates = np.flatnonzero(still[:first_second])
+        if len(start_candidates) == 0:
+            return None
+        i0 = int(start_candidates[0])
+        moving = np.flatnonzero(~still[i0:])
+        if len(moving) or rows == len(t):
+            break
+        rows = min(len(t), 2 * rows)
     i1 = i0 + int(moving[0]) if len(moving) else len(t)
     if t[i1 - 1] - t[i0] < timing.still_window_s:
         return None
     return i0, i1
+
+
+def _moving_average(values: np.ndarray, n_avg: int) -> np.ndarray:
+    """Centred moving average of the rows of ``values`` (n, k) over ``n_avg`` <= n rows: row i averages rows
+    ``i - n_avg // 2`` to ``i - n_avg // 2 + n_avg - 1``; rows whose window would leave the array hold the nearest
+    full-window average."""
+    n, half = len(values), n_avg // 2
+    cumulative = np.zeros((n + 1, values.shape[1]))
+    np.cumsum(values, axis=0, out=cumulative[1:])
+    full_windows = (cumulative[n_avg:] - cumulative[:-n_avg]) / n_avg  # row j: mean of rows j .. j + n_avg - 1
+    return full_windows[np.clip(np.arange(n) - half, 0, n - n_avg)]
 
 
 def tilt_from_specific_force(f_b: np.ndarray) -> tuple[float, float]:

@@ -241,6 +241,43 @@ def test_alignment_from_still_window():
     assert a.yaw_source == "mag"
 
 
+def _still_window_whole_log(imu, gravity_m_s2, config):
+    """Oracle for events.still_window: 0.2 s moving averages of the whole log by np.convolve."""
+    n_avg = round(0.2 / imu.median_dt_s)
+    kernel = np.ones(n_avg) / n_avg
+    gyro = np.column_stack([np.convolve(imu.gyro_rad_s[:, i], kernel, mode="same") for i in range(3)])
+    accel = np.column_stack([np.convolve(imu.accel_m_s2[:, i], kernel, mode="same") for i in range(3)])
+    half = n_avg // 2
+    gyro[:half], accel[:half] = gyro[half], accel[half]  # the edges see zero padding
+    gyro[len(gyro) - half:], accel[len(accel) - half:] = gyro[-half - 1], accel[-half - 1]
+    t = imu.time_s
+    norm = np.linalg.norm(accel, axis=1)
+    reference = float(np.median(norm[t <= t[0] + 1.0]))
+    still = ((np.linalg.norm(gyro, axis=1) < config.timing.still_gyro_rad_s)
+             & (np.abs(norm - reference) < config.timing.still_accel_m_s2))
+    i0 = int(np.flatnonzero(still & (t <= t[0] + 1.0))[0])
+    moving = np.flatnonzero(~still[i0:])
+    return i0, i0 + int(moving[0]) if len(moving) else len(t)
+
+
+@pytest.mark.parametrize("still_s", [5.0, 37.3, 200.0, None])
+def test_still_window_ends_at_the_first_motion(still_s):
+    """The window found on growing prefixes of the log is the one the whole log's moving averages give."""
+    rng = np.random.default_rng(3)
+    time_s = 10.0 + np.arange(0, 120.0, 0.004)
+    gyro = rng.normal(0.0, 0.002, (len(time_s), 3)) + np.array([0.01, -0.02, 0.0])
+    accel = rng.normal(0.0, 0.02, (len(time_s), 3)) + np.array([0.0, 0.0, -9.81])
+    if still_s is not None:
+        gyro[time_s >= 10.0 + still_s, 2] += 0.5
+    imu = events.ImuSamples(time_s=time_s, gyro_rad_s=gyro, accel_m_s2=accel, median_dt_s=0.004, gaps=(),
+                            n_dropped=0)
+    config = EstimatorConfig()
+    window = events.still_window(imu, 9.81, config)
+    assert window == _still_window_whole_log(imu, 9.81, config)
+    expected_end_s = 120.0 if still_s is None or still_s > 120.0 else still_s
+    assert time_s[window[1] - 1] - 10.0 == pytest.approx(expected_end_s, abs=0.15)
+
+
 def test_degraded_plans():
     no_gps = events.build_replay_inputs(_still_log(gps=False))
     assert not no_gps.plan.has_gps and no_gps.events.count(events.ZERO_VELOCITY) > 0
