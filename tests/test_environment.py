@@ -41,10 +41,11 @@ def test_earth_field_is_ned_with_the_model_declination_and_inclination():
     assert 0.45 < np.linalg.norm(field_ned) < 0.6  # mid-latitude field strength
 
 
-def test_geodetic_ned_round_trip_is_exact_far_from_the_origin():
+@pytest.mark.parametrize("spread_deg", [0.05, 1.0])
+def test_geodetic_ned_round_trip_is_exact_far_from_the_origin(spread_deg):
     rng = np.random.default_rng(7)
-    lat_deg = 35.0 + rng.uniform(-0.05, 0.05, 200)
-    lon_deg = 108.9 + rng.uniform(-0.05, 0.05, 200)
+    lat_deg = 35.0 + rng.uniform(-spread_deg, spread_deg, 200)
+    lon_deg = 108.9 + rng.uniform(-spread_deg, spread_deg, 200)
     alt_m = 630.0 + rng.uniform(0.0, 3000.0, 200)
     north_m, east_m, down_m = geodetic_to_ned(lat_deg, lon_deg, alt_m, 35.0, 108.9, 630.0)
     np.testing.assert_allclose(down_m, -(alt_m - 630.0))
