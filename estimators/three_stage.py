@@ -77,17 +77,15 @@ from estimators.three_stage_models import (
     euler_yaw_rate,
     ned_acceleration,
     stage1_A,
-    stage1_C_airspeed,
     stage1_G,
     stage1_h_acceleration,
     stage1_h_airspeed,
     stage1_rates,
     stage2_G,
     stage2_h,
-    stage3_fw_A,
-    stage3_fw_G,
     stage3_fw_h_gps_velocity,
     stage3_fw_h_wind,
+    stage3_fw_jacobians,
     stage3_fw_rates,
     stage3_fw_wind_input_jacobian,
     stage3_mc_A,
@@ -290,27 +288,79 @@ class KernelParams(NamedTuple):
 # stage steps (numba)
 
 
+class StageWork(NamedTuple):
+    """Preallocated work arrays of one stage with ``n`` states: the kernel loop allocates nothing per sample."""
+
+    A: np.ndarray  # (n, n) continuous Jacobian df/dx
+    G: np.ndarray  # (n, n_inputs) input-noise Jacobian df/du
+    F: np.ndarray  # (n, n) transition matrix
+    Q: np.ndarray  # (n, n) discrete process noise
+    W: np.ndarray  # (n, n) scratch of the covariance propagation and repair
+    u: np.ndarray  # (n_u,) mean inputs of a deferred covariance propagation
+    input_var: np.ndarray  # (n_inputs,) variances of the inputs in G
+    H: np.ndarray  # (3, n) measurement Jacobian rows (whitened in place by vector updates)
+    dx: np.ndarray  # (n,) correction of a scalar update
+    ph: np.ndarray  # (n,) P H^T scratch
+    min_var: np.ndarray  # (n,) variance floor of the covariance repair
+
+
+class MeasurementWork(NamedTuple):
+    """Preallocated work arrays of the measurement models and vector updates (up to 3 components)."""
+
+    h: np.ndarray  # (3,) predicted measurement
+    jac: np.ndarray  # (3, 3) dh/d(phi, theta, psi)
+    c: np.ndarray  # (3, 2) stage-1 dh/d(phi, theta) of the airspeed model
+    z: np.ndarray  # (3,) measured unit vector
+    tilt: np.ndarray  # (3, 2) dh/d(phi, theta) of a heading update (cascade inflation)
+    nu: np.ndarray  # (3, 1) innovation (whitened in place)
+    R: np.ndarray  # (3, 3) measurement noise
+    L: np.ndarray  # (3, 3) Cholesky factor
+    S: np.ndarray  # (3, 3) whitened innovation covariance
+    y: np.ndarray  # (3, 1) S-whitened innovation
+    mean: np.ndarray  # (8,) inputs averaged over the accelerometer update interval
+    no_accel: np.ndarray  # (3,) zero NED acceleration (gravity-only stage-1 model)
+
+
 @njit(cache=True)
-def _rk4_stage1(x, rates, dt):
-    """Classical RK4 of eq 18 over ``dt`` with the rates held, in place (no allocation)."""
-    p, q, r = rates[0], rates[1], rates[2]
+def _stage_work(n, n_inputs, n_u):
+    return StageWork(np.zeros((n, n)), np.zeros((n, n_inputs)), np.zeros((n, n)), np.zeros((n, n)), np.zeros((n, n)),
+                     np.zeros(n_u), np.zeros(n_inputs), np.zeros((3, n)), np.zeros(n),
+                     np.zeros(n), np.full(n, MIN_VARIANCE))
+
+
+@njit(cache=True)
+def _measurement_work():
+    return MeasurementWork(np.zeros(3), np.zeros((3, 3)), np.zeros((3, 2)), np.zeros(3), np.zeros((3, 2)),
+                           np.zeros((3, 1)), np.zeros((3, 3)), np.zeros((3, 3)), np.zeros((3, 3)), np.zeros((3, 1)),
+                           np.zeros(8), np.zeros(3))
+
+
+@njit(cache=True)
+def _stage1_rates_at(phi, theta, p, q, r):
+    return stage1_rates(math.sin(phi), math.cos(phi), math.tan(theta), p, q, r)
+
+
+@njit(cache=True)
+def _rk4_stage1(x, p, q, r, k1, dt):
+    """Classical RK4 of eq 18 over ``dt`` with the rates held, in place; ``k1`` = (phi_dot, theta_dot) at ``x``."""
     phi, theta = x[0], x[1]
-    a1, b1 = stage1_rates(phi, theta, p, q, r)
-    a2, b2 = stage1_rates(phi + 0.5 * dt * a1, theta + 0.5 * dt * b1, p, q, r)
-    a3, b3 = stage1_rates(phi + 0.5 * dt * a2, theta + 0.5 * dt * b2, p, q, r)
-    a4, b4 = stage1_rates(phi + dt * a3, theta + dt * b3, p, q, r)
+    a1, b1 = k1
+    a2, b2 = _stage1_rates_at(phi + 0.5 * dt * a1, theta + 0.5 * dt * b1, p, q, r)
+    a3, b3 = _stage1_rates_at(phi + 0.5 * dt * a2, theta + 0.5 * dt * b2, p, q, r)
+    a4, b4 = _stage1_rates_at(phi + dt * a3, theta + dt * b3, p, q, r)
     x[0] = phi + dt / 6.0 * (a1 + 2.0 * a2 + 2.0 * a3 + a4)
     x[1] = theta + dt / 6.0 * (b1 + 2.0 * b2 + 2.0 * b3 + b4)
 
 
 @njit(cache=True)
-def _rk4_stage3_fw(x, va, psi_dot, psi, phi, g, dt):
-    """Classical RK4 of the fixed-wing navigation model over ``dt`` with the inputs held, in place."""
+def _rk4_stage3_fw(x, va, psi_dot, cps, sps, turn, dt):
+    """Classical RK4 of the fixed-wing navigation model over ``dt`` with the inputs held (heading cosine and sine,
+    g tan(phi)), in place."""
     vg, chi, wn, we = x[2], x[3], x[4], x[5]
-    k1 = stage3_fw_rates(vg, chi, wn, we, va, psi_dot, psi, phi, g)
-    k2 = stage3_fw_rates(vg + 0.5 * dt * k1[2], chi + 0.5 * dt * k1[3], wn, we, va, psi_dot, psi, phi, g)
-    k3 = stage3_fw_rates(vg + 0.5 * dt * k2[2], chi + 0.5 * dt * k2[3], wn, we, va, psi_dot, psi, phi, g)
-    k4 = stage3_fw_rates(vg + dt * k3[2], chi + dt * k3[3], wn, we, va, psi_dot, psi, phi, g)
+    k1 = stage3_fw_rates(vg, chi, wn, we, va, psi_dot, cps, sps, turn)
+    k2 = stage3_fw_rates(vg + 0.5 * dt * k1[2], chi + 0.5 * dt * k1[3], wn, we, va, psi_dot, cps, sps, turn)
+    k3 = stage3_fw_rates(vg + 0.5 * dt * k2[2], chi + 0.5 * dt * k2[3], wn, we, va, psi_dot, cps, sps, turn)
+    k4 = stage3_fw_rates(vg + dt * k3[2], chi + dt * k3[3], wn, we, va, psi_dot, cps, sps, turn)
     x[0] += dt / 6.0 * (k1[0] + 2.0 * k2[0] + 2.0 * k3[0] + k4[0])
     x[1] += dt / 6.0 * (k1[1] + 2.0 * k2[1] + 2.0 * k3[1] + k4[1])
     x[2] += dt / 6.0 * (k1[2] + 2.0 * k2[2] + 2.0 * k3[2] + k4[2])
@@ -319,21 +369,20 @@ def _rk4_stage3_fw(x, va, psi_dot, psi, phi, g, dt):
 
 @njit(cache=True)
 def _add_input_noise(G, variances, scale, Q):
-    """``Q += G diag(variances) G^T * scale`` (small matrices, explicit loops)."""
+    """``Q += G diag(variances) G^T * scale`` over the rows of ``G`` (skipping its zero entries)."""
     n, m = G.shape
-    for i in range(n):
-        for j in range(n):
-            s = 0.0
-            for c in range(m):
-                s += G[i, c] * variances[c] * G[j, c]
-            Q[i, j] += s * scale
+    for c in range(m):
+        for i in range(n):
+            g_ic = G[i, c] * variances[c] * scale
+            if g_ic != 0.0:
+                for j in range(n):
+                    Q[i, j] += g_ic * G[j, c]
 
 
 @njit(cache=True)
-def _sandwich(J, P):
-    """``J P J^T`` for small matrices, shape (m, m)."""
-    m, n = J.shape
-    out = np.zeros((m, m))
+def _sandwich(J, P, m, out):
+    """``out[:m, :m] = J[:m] P J[:m]^T`` for small matrices."""
+    n = P.shape[0]
     for i in range(m):
         for j in range(m):
             s = 0.0
@@ -341,45 +390,58 @@ def _sandwich(J, P):
                 for b in range(n):
                     s += J[i, a] * P[a, b] * J[j, b]
             out[i, j] = s
-    return out
 
 
 @njit(cache=True)
-def _cholesky_lower(M):
-    """Lower Cholesky factor of a small symmetric positive-definite matrix (NaN when it is not)."""
-    m = M.shape[0]
-    L = np.zeros((m, m))
-    if not ekf_core.cholesky_lower(M, L, m, 0.0):
-        L[:, :] = math.nan
-    return L
+def _quadratic_form(v, P, first):
+    """``v^T P[first:, first:] v`` for a short tuple ``v``."""
+    s = 0.0
+    for a in range(len(v)):
+        for b in range(len(v)):
+            s += v[a] * P[first + a, first + b] * v[b]
+    return s
 
 
 @njit(cache=True)
-def _forward_solve(L, B):
-    """``L^-1 B`` for lower-triangular ``L`` (m, m) and ``B`` (m, k)."""
-    m, k = B.shape
-    X = B.copy()
+def _forward_solve(L, B, m):
+    """``B[:m] <- L^-1 B[:m]`` in place for the lower-triangular ``L[:m, :m]`` and ``B`` (>= m, k)."""
+    k = B.shape[1]
     for i in range(m):
         for j in range(i):
             for c in range(k):
-                X[i, c] -= L[i, j] * X[j, c]
+                B[i, c] -= L[i, j] * B[j, c]
         for c in range(k):
-            X[i, c] /= L[i, i]
-    return X
+            B[i, c] /= L[i, i]
 
 
 @njit(cache=True)
-def _propagate_states(dt, rates, f_b, va, prm, x1, x2, x3, stage3_on):
-    """The three states over ``dt`` [s] with the IMU row and airspeed held (RK4 / exact integration)."""
+def _cholesky_lower(M, m, L):
+    """Lower Cholesky factor of ``M[:m, :m]`` into ``L`` (NaN when it is not positive definite)."""
+    if not ekf_core.cholesky_lower(M, L, m, 0.0):
+        L[:m, :m] = math.nan
+
+
+@njit(cache=True, inline="always")
+def _propagate_states(dt, rates, f_b, va, prm, x1, x2, P2, x3, stage3_on):
+    """The three states over ``dt`` [s] with the IMU row and airspeed held (RK4 / exact integration), and the
+    stage-2 variance (A = 0: P += G N_g^2 G^T dt + q dt); the trigonometry of the pre-step roll and pitch is
+    shared by the stages."""
     phi, theta, psi2 = x1[0], x1[1], x2[0]
-    psi_dot = euler_yaw_rate(phi, theta, rates[1], rates[2])
-    _rk4_stage1(x1, rates, dt)
+    p, q, r = rates[0], rates[1], rates[2]
+    sph, cph, cth = math.sin(phi), math.cos(phi), math.cos(theta)
+    g2 = stage2_G(sph, cph, cth)
+    variance_rate = prm.qc2
+    for c in range(3):
+        variance_rate += g2[c] * g2[c] * prm.gyro_psd[c]
+    P2[0, 0] += variance_rate * dt
+    psi_dot = euler_yaw_rate(sph, cph, cth, q, r)
+    _rk4_stage1(x1, p, q, r, stage1_rates(sph, cph, math.tan(theta), p, q, r), dt)
     x2[0] = ekf_core.wrap_pi(psi2 + psi_dot * dt)  # A = 0 (eq 23): exact with the held inputs
     if not stage3_on:
         return
     if prm.fixed_wing_nav:
         psi, _, _ = corrected_heading(x3, psi2)
-        _rk4_stage3_fw(x3, va, psi_dot, psi, phi, prm.gravity_m_s2, dt)
+        _rk4_stage3_fw(x3, va, psi_dot, math.cos(psi), math.sin(psi), prm.gravity_m_s2 * sph / cph, dt)
     else:
         rate = stage3_mc_f(x3, ned_acceleration(phi, theta, psi2, f_b, prm.gravity_m_s2))
         for i in range(2):  # exact for the held acceleration
@@ -394,25 +456,26 @@ def _accumulate(acc, dt, rates, f_b, va):
     acc[7] += va * dt
 
 
-@njit(cache=True)
-def _flush_stage1(acc, x1_start, P1, prm, F1, Q1, W1, A1):
+@njit(cache=True, inline="always")
+def _flush_stage1(acc, x1_start, P1, prm, w):
     """Stage-1 covariance over the accumulated interval: F from the interval-start state and the mean rates,
     Q = G N_g^2 G^T dt + Qc dt (math note 2.2)."""
     dt = acc[0]
     if dt <= 0.0:
         return
-    rates = acc[1:4] / dt
-    ekf_core.transition_matrix(stage1_A(x1_start, rates), dt, F1)
+    for i in range(3):
+        w.u[i] = acc[1 + i] / dt
+    ekf_core.transition_matrix(stage1_A(x1_start, w.u, w.A), dt, w.F)
     for i in range(2):
         for j in range(2):
-            Q1[i, j] = prm.qc1[i, j] * dt
-    _add_input_noise(stage1_G(x1_start), prm.gyro_psd, dt, Q1)
-    ekf_core.propagate_covariance(P1, F1, Q1, W1)
+            w.Q[i, j] = prm.qc1[i, j] * dt
+    _add_input_noise(stage1_G(x1_start, w.G), prm.gyro_psd, dt, w.Q)
+    ekf_core.propagate_covariance(P1, w.F, w.Q, w.W)
     acc[:] = 0.0
 
 
-@njit(cache=True)
-def _flush_stage3(acc, x3_start, attitude_start, P1, P2, P3, prm, F3, Q3, W3, A3):
+@njit(cache=True, inline="always")
+def _flush_stage3(acc, x3_start, attitude_start, P1, P2, P3, prm, w):
     """Stage-3 covariance over the accumulated interval, from the interval-start state and attitude
     (phi, theta, psi_2) and the mean inputs."""
     dt = acc[0]
@@ -421,22 +484,24 @@ def _flush_stage3(acc, x3_start, attitude_start, P1, P2, P3, prm, F3, Q3, W3, A3
     n3 = x3_start.shape[0]
     for i in range(n3):
         for j in range(n3):
-            Q3[i, j] = prm.qc3[i, j] * dt
+            w.Q[i, j] = prm.qc3[i, j] * dt
     if prm.fixed_wing_nav:
-        u = np.array((acc[7] / dt, acc[2] / dt, acc[3] / dt, attitude_start[0], attitude_start[1],
-                      attitude_start[2]))
-        ekf_core.transition_matrix(stage3_fw_A(x3_start, u, prm.gravity_m_s2), dt, F3)
+        u = w.u
+        u[0], u[1], u[2] = acc[7] / dt, acc[2] / dt, acc[3] / dt
+        u[3], u[4], u[5] = attitude_start[0], attitude_start[1], attitude_start[2]
+        stage3_fw_jacobians(x3_start, u, prm.gravity_m_s2, w.A, w.G)
+        ekf_core.transition_matrix(w.A, dt, w.F)
         # airspeed and stage-2 heading errors as inputs: first-order Gauss-Markov errors with the correlation
         # time INPUT_CORRELATION_S have the low-frequency density 2 sigma^2 T (math note 3.3)
-        _add_input_noise(stage3_fw_G(x3_start, u, prm.gravity_m_s2), np.array((prm.airspeed_var, P2[0, 0])),
-                         2.0 * INPUT_CORRELATION_S * dt, Q3)
+        w.input_var[0], w.input_var[1] = prm.airspeed_var, P2[0, 0]
+        _add_input_noise(w.G, w.input_var, 2.0 * INPUT_CORRELATION_S * dt, w.Q)
     else:
-        ekf_core.transition_matrix(prm.a3_multicopter, dt, F3)
+        ekf_core.transition_matrix(prm.a3_multicopter, dt, w.F)
         # accelerometer density (rotation-invariant) plus the tilt error g * delta (math note 3.4)
         velocity_var = prm.accel_psd * dt + prm.gravity_m_s2 ** 2 * max(P1[0, 0], P1[1, 1]) * dt * dt
-        Q3[2, 2] += velocity_var
-        Q3[3, 3] += velocity_var
-    ekf_core.propagate_covariance(P3, F3, Q3, W3)
+        w.Q[2, 2] += velocity_var
+        w.Q[3, 3] += velocity_var
+    ekf_core.propagate_covariance(P3, w.F, w.Q, w.W)
     acc[:] = 0.0
 
 
@@ -447,123 +512,144 @@ def _record(diag_f, diag_i, counters, t, sensor, component, nu, s_var, nis, acce
 
 
 @njit(cache=True)
-def _stage1_update(t, f_mean, rates_mean, va, accel_n, prm, x1, P1, x2, dx, ph, diag_f, diag_i, counters):
-    """Three sequential scalar accelerometer updates, re-linearised after each (Algorithm 1, stage 1)."""
-    if prm.airspeed_model:
-        h = stage1_h_airspeed(x1, rates_mean, va, prm.gravity_m_s2)
+def _stage1_model(x1, yaw_rad, rates, va, accel_n, airspeed_model, gravity_m_s2, h, c, jac):
+    """Stage-1 accelerometer model into ``h`` (3,) and dh/d(phi, theta) into ``c`` (3, 2): steady flight with
+    airspeed, else the acceleration form (``jac`` (3, 3) scratch). Explicit arrays, not the work tuples: every
+    array argument of a branching numba call costs a reference-count pair."""
+    if airspeed_model:
+        stage1_h_airspeed(x1, rates, va, gravity_m_s2, h, c)
     else:
-        h, _ = stage1_h_acceleration(x1, x2[0], accel_n, prm.gravity_m_s2)
+        _, c_tilt = stage1_h_acceleration(x1, yaw_rad, accel_n, gravity_m_s2, h, jac)
+        c[:, :] = c_tilt
+
+
+@njit(cache=True, inline="always")
+def _stage1_update(t, f_mean, rates_mean, va, accel_n, prm, x1, P1, x2, w, mw, diag_f, diag_i, counters):
+    """Three sequential scalar accelerometer updates, re-linearised after each (Algorithm 1, stage 1)."""
+    h, c = mw.h, mw.c
+    _stage1_model(x1, x2[0], rates_mean, va, accel_n, prm.airspeed_model, prm.gravity_m_s2, h, c, mw.jac)
     mismatch = abs(math.sqrt(f_mean[0] ** 2 + f_mean[1] ** 2 + f_mean[2] ** 2)
                    - math.sqrt(h[0] ** 2 + h[1] ** 2 + h[2] ** 2))
     extra_var = mismatch * mismatch if mismatch > prm.manoeuvre_threshold_m_s2 else 0.0
     for axis in range(3):
-        if prm.airspeed_model:
-            h = stage1_h_airspeed(x1, rates_mean, va, prm.gravity_m_s2)
-            c = stage1_C_airspeed(x1, rates_mean, va, prm.gravity_m_s2)
-        else:
-            h, c = stage1_h_acceleration(x1, x2[0], accel_n, prm.gravity_m_s2)
         nu = f_mean[axis] - h[axis]
-        accepted, s_var, nis = ekf_core.scalar_update(P1, c[axis].copy(), nu, prm.accel_var[axis] + extra_var,
-                                                      prm.accel_gate, dx, ph)
+        accepted, s_var, nis = ekf_core.scalar_update(P1, c[axis], nu, prm.accel_var[axis] + extra_var,
+                                                      prm.accel_gate, w.dx, w.ph)
         _record(diag_f, diag_i, counters, t, ACCEL, axis, nu, s_var, nis, accepted)
         if accepted:
-            x1 += dx
+            x1 += w.dx
+            _stage1_model(x1, x2[0], rates_mean, va, accel_n, prm.airspeed_model, prm.gravity_m_s2, h, c,
+                          mw.jac)  # re-linearise
 
 
 @njit(cache=True)
-def _whitened_update(t, sensor, x, P, nu, H, R, gate_d2, dx, ph, diag_f, diag_i, counters):
+def _whitened_update(t, sensor, x, P, m, nu, H, R, gate_d2, w, mw, diag_f, diag_i, counters):
     """A vector measurement with correlated noise R, gated as a whole, then whitened and fused component-wise.
 
-    Gate: the vector is rejected when ``nu^T S^-1 nu > gate_d2`` with ``S = H P H^T + R`` (a chi-square threshold
-    for ``m`` components). Fusion: with ``R = L L^T``, ``nu' = L^-1 nu``, ``H' = L^-1 H`` and ``R' = I``, one scalar
-    update per component; later components are corrected linearly, so the result equals the batch update.
+    ``nu`` (>= m, 1), ``H`` (>= m, n) and ``R`` (>= m, >= m) hold the ``m`` components; ``nu`` and ``H`` are
+    whitened in place. Gate: the vector is rejected when ``nu^T S^-1 nu > gate_d2`` with ``S = H P H^T + R`` (a
+    chi-square threshold for ``m`` components). Fusion: with ``R = L L^T``, ``nu' = L^-1 nu``, ``H' = L^-1 H`` and
+    ``R' = I``, one scalar update per component; later components are corrected linearly, so the result equals the
+    batch update.
     """
-    m = nu.shape[0]
-    L = _cholesky_lower(R)
-    nu_col = _forward_solve(L, nu.reshape((m, 1)))
-    H_w = _forward_solve(L, H)
+    L, S, y = mw.L, mw.S, mw.y
+    _cholesky_lower(R, m, L)
+    _forward_solve(L, nu, m)
+    _forward_solve(L, H, m)
     # whole-vector Mahalanobis distance in whitened coordinates: S' = H' P H'^T + I
-    s_w = _sandwich(H_w, P)
+    _sandwich(H, P, m, S)
     for i in range(m):
-        s_w[i, i] += 1.0
-    y = _forward_solve(_cholesky_lower(s_w), nu_col)
-    nu_w = nu_col[:, 0].copy()
+        S[i, i] += 1.0
+    _cholesky_lower(S, m, L)
+    y[:m] = nu[:m]
+    _forward_solve(L, y, m)
     d2 = 0.0
     for i in range(m):
         d2 += y[i, 0] * y[i, 0]
     if not d2 <= gate_d2:
         for i in range(m):
-            _record(diag_f, diag_i, counters, t, sensor, i, nu_w[i], s_w[i, i], nu_w[i] ** 2 / s_w[i, i], False)
+            _record(diag_f, diag_i, counters, t, sensor, i, nu[i, 0], S[i, i], nu[i, 0] ** 2 / S[i, i], False)
         return
     for i in range(m):
-        accepted, s_var, nis = ekf_core.scalar_update(P, H_w[i].copy(), nu_w[i], 1.0, math.inf, dx, ph)
-        _record(diag_f, diag_i, counters, t, sensor, i, nu_w[i], s_var, nis, accepted)
+        accepted, s_var, nis = ekf_core.scalar_update(P, H[i], nu[i, 0], 1.0, math.inf, w.dx, w.ph)
+        _record(diag_f, diag_i, counters, t, sensor, i, nu[i, 0], s_var, nis, accepted)
         if accepted:
-            x += dx
+            x += w.dx
             for j in range(i + 1, m):
                 for c in range(x.shape[0]):
-                    nu_w[j] -= H_w[j, c] * dx[c]
+                    nu[j, 0] -= H[j, c] * w.dx[c]
 
 
-@njit(cache=True)
-def _stage2_update(t, kind, values, variances, prm, x1, P1, x2, P2, dx, ph, diag_f, diag_i, counters):
+@njit(cache=True, inline="always")
+def _stage2_update(t, kind, values, variances, prm, x1, P1, x2, P2, w, mw, diag_f, diag_i, counters):
     """Heading update from a body-frame unit vector: magnetometer (3 components) or sun (2 tangent components)."""
-    phi, theta = x1[0], x1[1]
+    z = mw.z
     if kind == MAG:
-        z = values[:3].copy()
-        norm = math.sqrt(z[0] ** 2 + z[1] ** 2 + z[2] ** 2)
+        norm = math.sqrt(values[0] ** 2 + values[1] ** 2 + values[2] ** 2)
         if not norm > 0.0:
             return
-        z /= norm
+        for i in range(3):
+            z[i] = values[i] / norm
         ref = prm.mag_field_ned
         gate_d2 = prm.mag_gate_d2
     else:
-        z = values[:3].copy()
-        ref = values[3:6].copy()
+        z[:] = values[:3]
+        ref = values[3:6]
         gate_d2 = prm.sun_gate_d2
-    h, c, j_tilt = stage2_h(x2[0], phi, theta, ref)
+    h, c, j_tilt = stage2_h(x2[0], x1[0], x1[1], ref, mw.h, mw.jac)
+    nu, H, J = mw.nu, w.H, mw.tilt
     if kind == MAG:
-        nu = z - h
-        H = c
-        J = j_tilt
+        m = 3
+        for i in range(3):
+            nu[i, 0] = z[i] - h[i]
+            H[i, 0] = c[i, 0]
+            J[i, 0], J[i, 1] = j_tilt[i, 0], j_tilt[i, 1]
     else:
         # 2-DOF tangent-plane form (math note 8.5): nu = T^T z, H = T^T C, R = sigma^2 I_2
+        m = 2
         basis = sun_tangent_basis(h)
-        nu = np.zeros(2)
-        H = np.zeros((2, 1))
-        J = np.zeros((2, 2))
         for i in range(2):
+            nu[i, 0], H[i, 0], J[i, 0], J[i, 1] = 0.0, 0.0, 0.0, 0.0
             for a in range(3):
-                nu[i] += basis[a, i] * z[a]
+                nu[i, 0] += basis[a, i] * z[a]
                 H[i, 0] += basis[a, i] * c[a, 0]
                 J[i, 0] += basis[a, i] * j_tilt[a, 0]
                 J[i, 1] += basis[a, i] * j_tilt[a, 1]
-    R = _sandwich(J, P1) if prm.cascade_inflation else np.zeros((nu.shape[0], nu.shape[0]))
-    for i in range(nu.shape[0]):
+    R = mw.R
+    if prm.cascade_inflation:
+        _sandwich(J, P1, m, R)
+    else:
+        R[:m, :m] = 0.0
+    for i in range(m):
         R[i, i] += variances[0]
-    _whitened_update(t, kind, x2, P2, nu, H, R, gate_d2, dx, ph, diag_f, diag_i, counters)
+    _whitened_update(t, kind, x2, P2, m, nu, H, R, gate_d2, w, mw, diag_f, diag_i, counters)
     x2[0] = ekf_core.wrap_pi(x2[0])
 
 
 @njit(cache=True)
-def _stage3_fw_wind(t, va, vd_gps, prm, x2, P2, x3, P3, dx, ph, diag_f, diag_i, counters):
+def _stage3_fw_wind(t, va, vd_gps, prm, x2, P2, x3, P3, w, mw, diag_f, diag_i, counters):
     """Wind-triangle pseudo-measurement z = (0, 0) (eq 31-33 corrected), ungated."""
     vah = math.sqrt(max(va * va - vd_gps * vd_gps, 0.0))
     h, c = stage3_fw_h_wind(x3, vah, x2[0])
-    R = np.zeros((2, 2))
-    _add_input_noise(stage3_fw_wind_input_jacobian(x3, vah, x2[0]), np.array((prm.airspeed_var, P2[0, 0])), 1.0,
-                     R)
+    for i in range(2):
+        mw.nu[i, 0] = -h[i]
+        w.H[i, :] = c[i]
+    R = mw.R
+    R[:2, :2] = 0.0
+    w.input_var[0], w.input_var[1] = prm.airspeed_var, P2[0, 0]
+    _add_input_noise(stage3_fw_wind_input_jacobian(x3, vah, x2[0]), w.input_var, 1.0, R)
     R[0, 0] += prm.wind_pseudo_var
     R[1, 1] += prm.wind_pseudo_var
-    _whitened_update(t, WIND, x3, P3, -h, c, R, math.inf, dx, ph, diag_f, diag_i, counters)
+    _whitened_update(t, WIND, x3, P3, 2, mw.nu, w.H, R, math.inf, w, mw, diag_f, diag_i, counters)
     x3[3] = ekf_core.wrap_pi(x3[3])
 
 
 @njit(cache=True)
-def _stage3_gps_velocity(t, values, variances, prm, x3, P3, H, dx, ph, gps_mon, diag_f, diag_i, counters):
+def _stage3_gps_velocity(t, values, variances, prm, x3, P3, w, gps_mon, diag_f, diag_i, counters):
     """GPS horizontal velocity: NED components (linear in multicopter mode), or V_g and chi in paper mode
     (booked in the re-acquisition monitor ``gps_mon`` as velocity channels 0 and 1)."""
     n = x3.shape[0]
+    H = w.H[0]
     if prm.fixed_wing_nav and prm.paper_gps_velocity:
         speed = math.hypot(values[0], values[1])
         if speed < prm.min_ground_speed_m_s:
@@ -578,11 +664,11 @@ def _stage3_gps_velocity(t, values, variances, prm, x3, P3, H, dx, ph, gps_mon, 
             else:
                 nu = ekf_core.wrap_pi(course - x3[3])
                 r_var = 0.5 * (variances[0] + variances[1]) / (speed * speed)  # eq 9 corrected (T5)
-            accepted, s_var, nis = ekf_core.scalar_update(P3, H, nu, r_var, prm.gps_vel_gate, dx, ph)
+            accepted, s_var, nis = ekf_core.scalar_update(P3, H, nu, r_var, prm.gps_vel_gate, w.dx, w.ph)
             _record(diag_f, diag_i, counters, t, GPS_VEL, 3 + comp, nu, s_var, nis, accepted)
             ekf_core.gps_record(gps_mon, False, comp, t, accepted)
             if accepted:
-                x3 += dx
+                x3 += w.dx
                 x3[3] = ekf_core.wrap_pi(x3[3])
         return
     for comp in range(2):
@@ -595,11 +681,11 @@ def _stage3_gps_velocity(t, values, variances, prm, x3, P3, H, dx, ph, gps_mon, 
             nu = values[comp] - x3[2 + comp]
             H[:] = 0.0
             H[2 + comp] = 1.0
-        accepted, s_var, nis = ekf_core.scalar_update(P3, H, nu, variances[comp], prm.gps_vel_gate, dx, ph)
+        accepted, s_var, nis = ekf_core.scalar_update(P3, H, nu, variances[comp], prm.gps_vel_gate, w.dx, w.ph)
         _record(diag_f, diag_i, counters, t, GPS_VEL, comp, nu, s_var, nis, accepted)
         ekf_core.gps_record(gps_mon, False, comp, t, accepted)
         if accepted:
-            x3 += dx
+            x3 += w.dx
             if prm.fixed_wing_nav:
                 x3[3] = ekf_core.wrap_pi(x3[3])
 
@@ -630,7 +716,7 @@ def _lowpass(value, sample, dt, tau):
     return value + (1.0 - math.exp(-dt / tau)) * (sample - value)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _output_row(t, x1, P1, x2, P2, x3, P3, stage3_on, fixed_wing_nav, height, vertical_speed, row):
     row[:] = math.nan
     row[O_TIME] = t
@@ -652,14 +738,13 @@ def _output_row(t, x1, P1, x2, P2, x3, P3, stage3_on, fixed_wing_nav, height, ve
         # heading corrected by the stage-3 deviation estimate (its correlation with stage 2 is not tracked)
         psi, _, dpsi_ddev = corrected_heading(x3, x2[0])
         row[O_YAW] = ekf_core.wrap_pi(psi)
-        row[O_YAW_STD] = math.sqrt(P2[0, 0] + _sandwich(np.array((dpsi_ddev,)), P3[I_DEVIATION:, I_DEVIATION:])[0, 0])
+        row[O_YAW_STD] = math.sqrt(P2[0, 0] + _quadratic_form(dpsi_ddev, P3, I_DEVIATION))
         c, s, vg = math.cos(x3[3]), math.sin(x3[3]), x3[2]
         row[O_VN] = vg * c
         row[O_VE] = vg * s
         # first-order propagation of the (V_g, chi) covariance to (v_n, v_e)
-        cov = _sandwich(np.array(((c, -vg * s), (s, vg * c))), P3[2:4, 2:4])
-        row[O_VN_STD] = math.sqrt(max(cov[0, 0], 0.0))
-        row[O_VE_STD] = math.sqrt(max(cov[1, 1], 0.0))
+        row[O_VN_STD] = math.sqrt(max(_quadratic_form((c, -vg * s), P3, 2), 0.0))
+        row[O_VE_STD] = math.sqrt(max(_quadratic_form((s, vg * c), P3, 2), 0.0))
         row[O_WN] = x3[4]
         row[O_WE] = x3[5]
         row[O_WN_STD] = math.sqrt(P3[4, 4])
@@ -671,7 +756,7 @@ def _output_row(t, x1, P1, x2, P2, x3, P3, stage3_on, fixed_wing_nav, height, ve
         row[O_VE_STD] = math.sqrt(P3[3, 3])
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _check_health(x, P, x_safe, P0, counters):
     """Divergence reset (non-finite state or covariance -> last healthy state, initial covariance)."""
     if ekf_core.is_healthy(x, P):
@@ -681,10 +766,10 @@ def _check_health(x, P, x_safe, P0, counters):
         counters[C_RESETS] += 1
 
 
-@njit(cache=True)
-def _repair(P, max_var, work, counters):
+@njit(cache=True, inline="always")
+def _repair(P, max_var, w, counters):
     """Covariance limits and positive definiteness after measurement updates (:func:`ekf_core.repair_covariance`)."""
-    if ekf_core.repair_covariance(P, np.full(P.shape[0], MIN_VARIANCE), max_var, work, EIG_FLOOR):
+    if ekf_core.repair_covariance(P, w.min_var, max_var, w.W, EIG_FLOOR):
         counters[C_REPAIRS] += 1
 
 
@@ -711,15 +796,12 @@ def run_kernel(imu_t, imu_gyro, imu_accel, ev_t, ev_kind, ev_imu, ev_val, ev_var
     counters : int64 (N_COUNTERS,)
     """
     n3 = x3.shape[0]
-    F1, Q1, W1, W2 = np.empty((2, 2)), np.empty((2, 2)), np.empty((2, 2)), np.empty((1, 1))
-    F3, Q3, W3 = np.empty((n3, n3)), np.empty((n3, n3)), np.empty((n3, n3))
-    A1 = np.empty(2, dtype=np.bool_)
-    A3 = np.empty(n3, dtype=np.bool_)
-    dx1, ph1 = np.empty(2), np.empty(2)
-    dx2, ph2 = np.empty(1), np.empty(1)
-    dx3, ph3, H3 = np.empty(n3), np.empty(n3), np.empty(n3)
+    w1, w2, w3 = _stage_work(2, 3, 3), _stage_work(1, 3, 3), _stage_work(n3, 2, 6)
+    mw = _measurement_work()
     x1_safe, x2_safe, x3_safe = x1.copy(), x2.copy(), x3.copy()
     row = np.empty(out.shape[1])
+    rates = np.empty(3)  # bias-corrected gyro row
+    variances = np.empty(ev_var.shape[1])  # event variances raised to the model-error floor
     stage3_on = False
     # input sums (dt, omega dt, f dt, V_a dt) of the accelerometer update interval and of the deferred stage-1 and
     # stage-3 covariance propagations, with the states and attitude at the start of those intervals
@@ -740,7 +822,8 @@ def run_kernel(imu_t, imu_gyro, imu_accel, ev_t, ev_kind, ev_imu, ev_val, ev_var
     ie = 0
     n_ev = ev_t.shape[0]
     for k in range(imu_t.shape[0]):
-        rates = imu_gyro[k] - prm.gyro_bias_rad_s
+        for i in range(3):
+            rates[i] = imu_gyro[k, i] - prm.gyro_bias_rad_s[i]
         f_b = imu_accel[k]
         while True:
             at_event = ie < n_ev and ev_imu[ie] <= k
@@ -753,24 +836,22 @@ def run_kernel(imu_t, imu_gyro, imu_accel, ev_t, ev_kind, ev_imu, ev_val, ev_var
                 if stage3_on and acc3[0] == 0.0:
                     x3_start[:] = x3
                     attitude_start[0], attitude_start[1], attitude_start[2] = x1[0], x1[1], x2[0]
-                # stage 2 covariance (A = 0): P += G N_g^2 G^T dt + q dt at the pre-step roll and pitch
-                _add_input_noise(stage2_G(x1[0], x1[1]), prm.gyro_psd, dt, P2)
-                P2[0, 0] += prm.qc2 * dt
-                _propagate_states(dt, rates, f_b, va_in, prm, x1, x2, x3, stage3_on)
+                _propagate_states(dt, rates, f_b, va_in, prm, x1, x2, P2, x3, stage3_on)
                 _accumulate(acc_meas, dt, rates, f_b, va_in)
                 _accumulate(acc1, dt, rates, f_b, va_in)
                 if acc1[0] >= prm.covariance_dt_s:
-                    _flush_stage1(acc1, x1_start, P1, prm, F1, Q1, W1, A1)
+                    _flush_stage1(acc1, x1_start, P1, prm, w1)
                 if stage3_on:
                     _accumulate(acc3, dt, rates, f_b, va_in)
                     if acc3[0] >= prm.covariance_dt_s:
-                        _flush_stage3(acc3, x3_start, attitude_start, P1, P2, P3, prm, F3, Q3, W3, A3)
+                        _flush_stage3(acc3, x3_start, attitude_start, P1, P2, P3, prm, w3)
                 t = t_next
             if not at_event:
                 break
             kind = ev_kind[ie]
             values = ev_val[ie]
-            variances = np.maximum(ev_var[ie], prm.variance_floor[kind])
+            for i in range(variances.shape[0]):
+                variances[i] = np.maximum(ev_var[ie, i], prm.variance_floor[kind])
             if kind == OUTPUT:
                 # divergence check at the output rate: never a non-finite output row (reset to the last healthy)
                 _check_health(x1, P1, x1_safe, prm.p1_0, counters)
@@ -797,14 +878,13 @@ def run_kernel(imu_t, imu_gyro, imu_accel, ev_t, ev_kind, ev_imu, ev_val, ev_var
                 if abs(x1[1]) > PITCH_GUARD_RAD:
                     counters[C_PITCH_GUARD] += 1
                 else:
-                    _stage2_update(t, kind, values, variances, prm, x1, P1, x2, P2, dx2, ph2, diag_f, diag_i,
-                                   counters)
-                    _repair(P2, prm.max_var2, W2, counters)
+                    _stage2_update(t, kind, values, variances, prm, x1, P1, x2, P2, w2, mw, diag_f, diag_i, counters)
+                    _repair(P2, prm.max_var2, w2, counters)
             elif kind == GPS_POS:
                 gps_pos_t = t
                 gps_pos[:] = values[:2]
                 gps_pos_var[:] = variances[:2]
-                _flush_stage3(acc3, x3_start, attitude_start, P1, P2, P3, prm, F3, Q3, W3, A3)
+                _flush_stage3(acc3, x3_start, attitude_start, P1, P2, P3, prm, w3)
                 reset, counted = False, False
                 if stage3_on:
                     reset, counted = ekf_core.gps_reset_due(gps_mon, True, t, prm.gps_reset_after_s,
@@ -822,24 +902,27 @@ def run_kernel(imu_t, imu_gyro, imu_accel, ev_t, ev_kind, ev_imu, ev_val, ev_var
                         counters[C_GPS_RESETS] += 1
                 elif stage3_on:
                     if prm.fixed_wing_nav and t - va_t < STALE_AFTER_S:
-                        _stage3_fw_wind(t, va, gps_vel[2], prm, x2, P2, x3, P3, dx3, ph3, diag_f, diag_i, counters)
+                        _stage3_fw_wind(t, va, gps_vel[2], prm, x2, P2, x3, P3, w3, mw, diag_f, diag_i, counters)
+                    H3 = w3.H[0]
                     for i in range(2):
                         H3[:] = 0.0
                         H3[i] = 1.0
                         nu = values[i] - x3[i]
                         accepted, s_var, nis = ekf_core.scalar_update(P3, H3, nu, variances[i], prm.gps_pos_gate,
-                                                                      dx3, ph3)
+                                                                      w3.dx, w3.ph)
                         _record(diag_f, diag_i, counters, t, GPS_POS, i, nu, s_var, nis, accepted)
                         ekf_core.gps_record(gps_mon, True, i, t, accepted)
                         if accepted:
-                            x3 += dx3
+                            x3 += w3.dx
                     if prm.fixed_wing_nav:
                         x3[3] = ekf_core.wrap_pi(x3[3])
-                    _repair(P3, prm.max_var3, W3, counters)
+                    _repair(P3, prm.max_var3, w3, counters)
             elif kind == GPS_VEL:
                 dt_gps = t - gps_vel_t
                 if 0.0 < dt_gps < STALE_AFTER_S:
-                    gps_acc = _lowpass(gps_acc, (values[:3] - gps_vel) / dt_gps, dt_gps, prm.gps_acceleration_lpf_s)
+                    for i in range(3):
+                        gps_acc[i] = _lowpass(gps_acc[i], (values[i] - gps_vel[i]) / dt_gps, dt_gps,
+                                              prm.gps_acceleration_lpf_s)
                 else:
                     gps_acc[:] = 0.0
                 gps_vel[:] = values[:3]
@@ -859,7 +942,7 @@ def run_kernel(imu_t, imu_gyro, imu_accel, ev_t, ev_kind, ev_imu, ev_val, ev_var
                         stage3_on = True
                         ekf_core.gps_acquired(gps_mon, t)
                 else:
-                    _flush_stage3(acc3, x3_start, attitude_start, P1, P2, P3, prm, F3, Q3, W3, A3)
+                    _flush_stage3(acc3, x3_start, attitude_start, P1, P2, P3, prm, w3)
                     reset, counted = ekf_core.gps_reset_due(gps_mon, False, t, prm.gps_reset_after_s,
                                                             prm.gps_outage_reset_s)
                     if reset:
@@ -867,22 +950,23 @@ def run_kernel(imu_t, imu_gyro, imu_accel, ev_t, ev_kind, ev_imu, ev_val, ev_var
                         if counted:
                             counters[C_GPS_RESETS] += 1
                     else:
-                        _stage3_gps_velocity(t, values, variances, prm, x3, P3, H3, dx3, ph3, gps_mon, diag_f,
-                                             diag_i, counters)
-                        _repair(P3, prm.max_var3, W3, counters)
+                        _stage3_gps_velocity(t, values, variances, prm, x3, P3, w3, gps_mon, diag_f, diag_i, counters)
+                        _repair(P3, prm.max_var3, w3, counters)
             ie += 1
         # stage 1 at the accelerometer update rate, with the inputs averaged over the interval
         if t >= next_accel_t and acc_meas[0] > 0.0:
             if abs(x1[1]) > PITCH_GUARD_RAD:
                 counters[C_PITCH_GUARD] += 1
             else:
-                _flush_stage1(acc1, x1_start, P1, prm, F1, Q1, W1, A1)
+                _flush_stage1(acc1, x1_start, P1, prm, w1)
                 use_gps_acc = prm.gps_acceleration and t - gps_vel_t < STALE_AFTER_S
-                accel_n = gps_acc if use_gps_acc else np.zeros(3)
-                mean = acc_meas / acc_meas[0]
-                _stage1_update(t, mean[4:7], mean[1:4], mean[7], accel_n, prm, x1, P1, x2, dx1, ph1, diag_f, diag_i,
+                accel_n = gps_acc if use_gps_acc else mw.no_accel
+                mean = mw.mean
+                for i in range(8):
+                    mean[i] = acc_meas[i] / acc_meas[0]
+                _stage1_update(t, mean[4:7], mean[1:4], mean[7], accel_n, prm, x1, P1, x2, w1, mw, diag_f, diag_i,
                                counters)
-                _repair(P1, prm.max_var1, W1, counters)
+                _repair(P1, prm.max_var1, w1, counters)
             acc_meas[:] = 0.0
             next_accel_t = max(next_accel_t + prm.accel_update_dt_s, t + 0.5 * prm.accel_update_dt_s)
     counters[C_OUTPUTS] = n_out

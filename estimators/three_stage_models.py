@@ -39,34 +39,17 @@ MIN_GROUND_SPEED_M_S = 3.0
 
 
 @njit(cache=True)
-def rotation_nb(phi, theta, psi):
-    """R_nb for ZYX Euler angles [rad] (body FRD -> NED), shape (3, 3)."""
-    cph, sph = np.cos(phi), np.sin(phi)
-    cth, sth = np.cos(theta), np.sin(theta)
-    cps, sps = np.cos(psi), np.sin(psi)
-    r = np.empty((3, 3))
-    r[0, 0] = cth * cps
-    r[0, 1] = sph * sth * cps - cph * sps
-    r[0, 2] = cph * sth * cps + sph * sps
-    r[1, 0] = cth * sps
-    r[1, 1] = sph * sth * sps + cph * cps
-    r[1, 2] = cph * sth * sps - sph * cps
-    r[2, 0] = -sth
-    r[2, 1] = sph * cth
-    r[2, 2] = cph * cth
-    return r
-
-
-@njit(cache=True)
-def body_vector_and_euler_jacobian(v_n, phi, theta, psi):
+def body_vector_and_euler_jacobian(v_n, phi, theta, psi, h=None, jac=None):
     """A NED vector in body axes, h = C_bn v_n, and its Jacobian dh/d(phi, theta, psi) = [h]x W(Theta).
 
     Parameters
     ----------
-    v_n : ndarray, shape (3,)
+    v_n : ndarray or tuple, shape (3,)
         Vector in NED [any unit].
     phi, theta, psi : float
         ZYX Euler angles [rad].
+    h, jac : ndarray, optional
+        Output arrays (3,) and (3, 3) (allocated when None; the kernel passes preallocated ones).
 
     Returns
     -------
@@ -75,26 +58,39 @@ def body_vector_and_euler_jacobian(v_n, phi, theta, psi):
     jac : ndarray, shape (3, 3)
         Columns dh/dphi, dh/dtheta, dh/dpsi (math note 1.1 identity d(R^T a)/dTheta = [R^T a]x W).
     """
-    r = rotation_nb(phi, theta, psi)
-    h = np.zeros(3)
-    for i in range(3):
-        for j in range(3):
-            h[i] += r[j, i] * v_n[j]
+    if h is None:
+        h = np.empty(3)
+    if jac is None:
+        jac = np.empty((3, 3))
     cph, sph = np.cos(phi), np.sin(phi)
     cth, sth = np.cos(theta), np.sin(theta)
-    w = np.array(((1.0, 0.0, -sth), (0.0, cph, sph * cth), (0.0, -sph, cph * cth)))
-    jac = np.empty((3, 3))
-    for j in range(3):
-        jac[0, j] = h[1] * w[2, j] - h[2] * w[1, j]
-        jac[1, j] = h[2] * w[0, j] - h[0] * w[2, j]
-        jac[2, j] = h[0] * w[1, j] - h[1] * w[0, j]
+    cps, sps = np.cos(psi), np.sin(psi)
+    # C_bn = R_x(phi)^T R_y(theta)^T R_z(psi)^T: rotate by yaw, then pitch, then roll
+    a0 = cps * v_n[0] + sps * v_n[1]
+    a1 = cps * v_n[1] - sps * v_n[0]
+    b2 = sth * a0 + cth * v_n[2]
+    h[0] = cth * a0 - sth * v_n[2]
+    h[1] = cph * a1 + sph * b2
+    h[2] = cph * b2 - sph * a1
+    _cross_column(h, 1.0, 0.0, 0.0, jac, 0)  # columns of W(Theta)
+    _cross_column(h, 0.0, cph, -sph, jac, 1)
+    _cross_column(h, -sth, sph * cth, cph * cth, jac, 2)
     return h, jac
 
 
 @njit(cache=True)
-def euler_yaw_rate(phi, theta, q, r):
-    """psi_dot = q s_ph / c_th + r c_ph / c_th [rad/s] (third row of S(Theta); eq 22 corrected, T10)."""
-    return (q * np.sin(phi) + r * np.cos(phi)) / np.cos(theta)
+def _cross_column(h, w0, w1, w2, jac, j):
+    """Column ``j`` of ``jac`` = h x w."""
+    jac[0, j] = h[1] * w2 - h[2] * w1
+    jac[1, j] = h[2] * w0 - h[0] * w2
+    jac[2, j] = h[0] * w1 - h[1] * w0
+
+
+@njit(cache=True)
+def euler_yaw_rate(sph, cph, cth, q, r):
+    """psi_dot = q s_ph / c_th + r c_ph / c_th [rad/s] (third row of S(Theta); eq 22 corrected, T10), from the
+    roll sine and cosine and the pitch cosine (shared with the other stages by the caller)."""
+    return (q * sph + r * cph) / cth
 
 
 # --------------------------------------------------------------------------------------------------------------
@@ -118,40 +114,47 @@ def stage1_f(x, rates):
     ndarray, shape (2,)
         (phi_dot, theta_dot) [rad/s].
     """
-    phi_dot, theta_dot = stage1_rates(x[0], x[1], rates[0], rates[1], rates[2])
+    phi_dot, theta_dot = stage1_rates(np.sin(x[0]), np.cos(x[0]), np.tan(x[1]), rates[0], rates[1], rates[2])
     return np.array((phi_dot, theta_dot))
 
 
 @njit(cache=True)
-def stage1_rates(phi, theta, p, q, r):
-    """Scalar form of :func:`stage1_f`: (phi_dot, theta_dot) [rad/s] from (phi, theta) [rad] and (p, q, r)."""
-    sph, cph = np.sin(phi), np.cos(phi)
-    return p + (q * sph + r * cph) * np.tan(theta), q * cph - r * sph
+def stage1_rates(sph, cph, tth, p, q, r):
+    """Scalar form of :func:`stage1_f`: (phi_dot, theta_dot) [rad/s] from the roll sine and cosine, the pitch
+    tangent and (p, q, r)."""
+    return p + (q * sph + r * cph) * tth, q * cph - r * sph
 
 
 @njit(cache=True)
-def stage1_A(x, rates):
-    """df/dx of :func:`stage1_f`, shape (2, 2) (eq 19 corrected, T7)."""
+def stage1_A(x, rates, a=None):
+    """df/dx of :func:`stage1_f`, shape (2, 2) (eq 19 corrected, T7), written into ``a`` when given."""
+    if a is None:
+        a = np.empty((2, 2))
     sph, cph = np.sin(x[0]), np.cos(x[0])
     tth, cth = np.tan(x[1]), np.cos(x[1])
     q, r = rates[1], rates[2]
-    a = np.zeros((2, 2))
     a[0, 0] = (q * cph - r * sph) * tth
     a[0, 1] = (q * sph + r * cph) / (cth * cth)
     a[1, 0] = -q * sph - r * cph
+    a[1, 1] = 0.0
     return a
 
 
 @njit(cache=True)
-def stage1_G(x):
-    """df/d(p, q, r) of :func:`stage1_f` (gyro input-noise Jacobian), shape (2, 3)."""
+def stage1_G(x, g=None):
+    """df/d(p, q, r) of :func:`stage1_f` (gyro input-noise Jacobian), shape (2, 3), written into ``g`` when given."""
+    if g is None:
+        g = np.empty((2, 3))
     sph, cph, tth = np.sin(x[0]), np.cos(x[0]), np.tan(x[1])
-    return np.array(((1.0, sph * tth, cph * tth), (0.0, cph, -sph)))
+    g[0, 0], g[0, 1], g[0, 2] = 1.0, sph * tth, cph * tth
+    g[1, 0], g[1, 1], g[1, 2] = 0.0, cph, -sph
+    return g
 
 
 @njit(cache=True)
-def stage1_h_airspeed(x, rates, airspeed_m_s, gravity_m_s2):
-    """Specific force of steady flight with the centripetal term from airspeed (eq 20 corrected, T8).
+def stage1_h_airspeed(x, rates, airspeed_m_s, gravity_m_s2, h=None, c=None):
+    """Specific force of steady flight with the centripetal term from airspeed (eq 20 corrected, T8) and its
+    Jacobian (eq 21).
 
     Assumes u_dot = v_dot = w_dot = 0 and V_b = V_a (c_th, 0, s_th) (zero flight-path angle, no sideslip), so
     h = omega x V_b - C_bn g_n.
@@ -166,40 +169,38 @@ def stage1_h_airspeed(x, rates, airspeed_m_s, gravity_m_s2):
         True airspeed V_a [m/s] (0 gives the gravity-only model).
     gravity_m_s2 : float
         Local gravity [m/s^2].
+    h, c : ndarray, optional
+        Output arrays (3,) and (3, 2) (allocated when None).
 
     Returns
     -------
-    ndarray, shape (3,)
+    h : ndarray, shape (3,)
         Predicted accelerometer reading (f_x, f_y, f_z), body FRD [m/s^2].
+    c : ndarray, shape (3, 2)
+        dh/d(phi, theta).
     """
+    if h is None:
+        h = np.empty(3)
+    if c is None:
+        c = np.empty((3, 2))
     sph, cph = np.sin(x[0]), np.cos(x[0])
     sth, cth = np.sin(x[1]), np.cos(x[1])
     p, q, r = rates[0], rates[1], rates[2]
     va, g = airspeed_m_s, gravity_m_s2
-    return np.array((q * va * sth + g * sth,
-                     r * va * cth - p * va * sth - g * cth * sph,
-                     -q * va * cth - g * cth * cph))
-
-
-@njit(cache=True)
-def stage1_C_airspeed(x, rates, airspeed_m_s, gravity_m_s2):
-    """dh/d(phi, theta) of :func:`stage1_h_airspeed`, shape (3, 2) (eq 21)."""
-    sph, cph = np.sin(x[0]), np.cos(x[0])
-    sth, cth = np.sin(x[1]), np.cos(x[1])
-    p, q, r = rates[0], rates[1], rates[2]
-    va, g = airspeed_m_s, gravity_m_s2
-    c = np.empty((3, 2))
+    h[0] = q * va * sth + g * sth
+    h[1] = r * va * cth - p * va * sth - g * cth * sph
+    h[2] = -q * va * cth - g * cth * cph
     c[0, 0] = 0.0
     c[0, 1] = (q * va + g) * cth
     c[1, 0] = -g * cph * cth
     c[1, 1] = -r * va * sth - p * va * cth + g * sph * sth
     c[2, 0] = g * sph * cth
     c[2, 1] = (q * va + g * cph) * sth
-    return c
+    return h, c
 
 
 @njit(cache=True)
-def stage1_h_acceleration(x, yaw_rad, accel_ned_m_s2, gravity_m_s2):
+def stage1_h_acceleration(x, yaw_rad, accel_ned_m_s2, gravity_m_s2, h=None, jac=None):
     """Specific force from a known NED acceleration, h = C_bn(phi, theta, psi) (a_n - g_n) (math note 3.1).
 
     Parameters
@@ -212,18 +213,19 @@ def stage1_h_acceleration(x, yaw_rad, accel_ned_m_s2, gravity_m_s2):
         Kinematic acceleration a_n (e.g. from GPS velocity) [m/s^2]; zeros give the gravity-only model.
     gravity_m_s2 : float
         Local gravity [m/s^2]; g_n = (0, 0, g).
+    h, jac : ndarray, optional
+        Output arrays (3,) and (3, 3) (allocated when None); ``jac`` receives dh/d(phi, theta, psi).
 
     Returns
     -------
     h : ndarray, shape (3,)
         Predicted accelerometer reading, body FRD [m/s^2].
     c : ndarray, shape (3, 2)
-        dh/d(phi, theta).
+        dh/d(phi, theta) (a view of ``jac``).
     """
-    specific_n = accel_ned_m_s2.copy()
-    specific_n[2] -= gravity_m_s2
-    h, jac = body_vector_and_euler_jacobian(specific_n, x[0], x[1], yaw_rad)
-    return h, jac[:, :2].copy()
+    specific_n = (accel_ned_m_s2[0], accel_ned_m_s2[1], accel_ned_m_s2[2] - gravity_m_s2)
+    h, jac = body_vector_and_euler_jacobian(specific_n, x[0], x[1], yaw_rad, h, jac)
+    return h, jac[:, :2]
 
 
 # --------------------------------------------------------------------------------------------------------------
@@ -232,14 +234,14 @@ def stage1_h_acceleration(x, yaw_rad, accel_ned_m_s2, gravity_m_s2):
 
 
 @njit(cache=True)
-def stage2_G(phi, theta):
-    """d psi_dot / d(p, q, r) (gyro input-noise Jacobian of eq 22), shape (1, 3); A = 0 (eq 23)."""
-    cth = np.cos(theta)
-    return np.array(((0.0, np.sin(phi) / cth, np.cos(phi) / cth),))
+def stage2_G(sph, cph, cth):
+    """d psi_dot / d(p, q, r) (gyro input-noise Jacobian of eq 22), a 3-tuple, from the roll sine and cosine and
+    the pitch cosine; A = 0 (eq 23)."""
+    return 0.0, sph / cth, cph / cth
 
 
 @njit(cache=True)
-def stage2_h(yaw_rad, phi, theta, ref_n):
+def stage2_h(yaw_rad, phi, theta, ref_n, h=None, jac=None):
     """A reference unit vector seen in body axes and its Jacobians (eq 24, eq 25 corrected, T11).
 
     Parameters
@@ -250,18 +252,20 @@ def stage2_h(yaw_rad, phi, theta, ref_n):
         Stage-1 roll and pitch [rad] (inputs).
     ref_n : ndarray, shape (3,)
         Reference unit vector in NED (earth magnetic field direction from WMM, or the sun direction).
+    h, jac : ndarray, optional
+        Output arrays (3,) and (3, 3) (allocated when None); ``jac`` receives dh/d(phi, theta, psi).
 
     Returns
     -------
     h : ndarray, shape (3,)
         Predicted body-frame unit vector.
     c : ndarray, shape (3, 1)
-        dh/dpsi = h x (-s_th, s_ph c_th, c_ph c_th).
+        dh/dpsi = h x (-s_th, s_ph c_th, c_ph c_th) (a view of ``jac``).
     j_tilt : ndarray, shape (3, 2)
         dh/d(phi, theta), used to inflate R by the stage-1 covariance (cascade consistency, math note 3.2).
     """
-    h, jac = body_vector_and_euler_jacobian(ref_n, phi, theta, yaw_rad)
-    return h, jac[:, 2:].copy(), jac[:, :2].copy()
+    h, jac = body_vector_and_euler_jacobian(ref_n, phi, theta, yaw_rad, h, jac)
+    return h, jac[:, 2:], jac[:, :2]
 
 
 # --------------------------------------------------------------------------------------------------------------
@@ -332,82 +336,76 @@ def stage3_fw_f(x, u, gravity_m_s2):
     ndarray, shape (9,)
         State derivative (wind and deviation: 0).
     """
-    psi_dot = euler_yaw_rate(u[3], u[4], u[1], u[2])
+    sph, cph = np.sin(u[3]), np.cos(u[3])
     psi, _, _ = corrected_heading(x, u[5])
     out = np.zeros(N_STAGE3_FW)
-    out[0], out[1], out[2], out[3] = stage3_fw_rates(x[2], x[3], x[4], x[5], u[0], psi_dot, psi, u[3],
-                                                     gravity_m_s2)
+    out[0], out[1], out[2], out[3] = stage3_fw_rates(x[2], x[3], x[4], x[5], u[0],
+                                                     euler_yaw_rate(sph, cph, np.cos(u[4]), u[1], u[2]),
+                                                     np.cos(psi), np.sin(psi), gravity_m_s2 * sph / cph)
     return out
 
 
 @njit(cache=True)
-def stage3_fw_rates(vg, chi, wn, we, va, psi_dot, psi, phi, gravity_m_s2):
+def stage3_fw_rates(vg, chi, wn, we, va, psi_dot, cps, sps, turn_m_s2):
     """Scalar form of :func:`stage3_fw_f`: (p_n_dot, p_e_dot, V_g_dot, chi_dot).
 
     Parameters
     ----------
     vg, chi, wn, we : float
         Ground speed [m/s], course [rad], wind north/east [m/s].
-    va, psi_dot, psi, phi : float
-        Airspeed [m/s], heading rate [rad/s], (corrected) heading [rad], roll [rad].
-    gravity_m_s2 : float
+    va, psi_dot : float
+        Airspeed [m/s], heading rate [rad/s].
+    cps, sps : float
+        Cosine and sine of the (corrected) heading.
+    turn_m_s2 : float
+        g tan(phi) [m/s^2] (coordinated turn).
     """
     inv_vg, _ = _inverse_speed(vg)
-    return (vg * np.cos(chi), vg * np.sin(chi), va * psi_dot * (we * np.cos(psi) - wn * np.sin(psi)) * inv_vg,
-            gravity_m_s2 * np.tan(phi) * np.cos(chi - psi) * inv_vg)
+    cch, sch = np.cos(chi), np.sin(chi)
+    cos_chi_psi = cch * cps + sch * sps
+    return (vg * cch, vg * sch, va * psi_dot * (we * cps - wn * sps) * inv_vg, turn_m_s2 * cos_chi_psi * inv_vg)
 
 
 @njit(cache=True)
-def _heading_derivatives(x, u, psi, gravity_m_s2):
-    """d(V_g_dot, chi_dot)/dpsi at the corrected heading ``psi``."""
-    vg, chi, wn, we = x[2], x[3], x[4], x[5]
-    va, phi = u[0], u[3]
-    inv_vg, _ = _inverse_speed(vg)
-    psi_dot = euler_yaw_rate(phi, u[4], u[1], u[2])
-    return (-va * psi_dot * (wn * np.cos(psi) + we * np.sin(psi)) * inv_vg,
-            gravity_m_s2 * np.tan(phi) * np.sin(chi - psi) * inv_vg)
-
-
-@njit(cache=True)
-def stage3_fw_A(x, u, gravity_m_s2):
-    """df/dx of :func:`stage3_fw_f`, shape (9, 9) (eq 30 corrected, T14, plus the deviation columns)."""
+def stage3_fw_jacobians(x, u, gravity_m_s2, a=None, g=None):
+    """Jacobians of :func:`stage3_fw_f`: df/dx (9, 9) (eq 30 corrected, T14, plus the deviation columns) and the
+    input-noise Jacobian df/d(V_a, psi_2) (9, 2) for the airspeed and stage-2 heading errors; written into ``a``
+    and ``g`` when given (allocated when None)."""
+    if a is None:
+        a = np.empty((N_STAGE3_FW, N_STAGE3_FW))
+    if g is None:
+        g = np.empty((N_STAGE3_FW, 2))
     vg, chi, wn, we = x[2], x[3], x[4], x[5]
     va, q, r, phi, theta = u[0], u[1], u[2], u[3], u[4]
-    psi, _, dpsi_ddev = corrected_heading(x, u[5])
+    psi, dpsi_dyaw2, dpsi_ddev = corrected_heading(x, u[5])
     inv_vg, dinv_vg = _inverse_speed(vg)
-    psi_dot = euler_yaw_rate(phi, theta, q, r)
+    sph, cph = np.sin(phi), np.cos(phi)
+    psi_dot = euler_yaw_rate(sph, cph, np.cos(theta), q, r)
     cps, sps = np.cos(psi), np.sin(psi)
-    turn = gravity_m_s2 * np.tan(phi)
-    a = np.zeros((N_STAGE3_FW, N_STAGE3_FW))
-    a[0, 2] = np.cos(chi)
-    a[0, 3] = -vg * np.sin(chi)
-    a[1, 2] = np.sin(chi)
-    a[1, 3] = vg * np.cos(chi)
+    cch, sch = np.cos(chi), np.sin(chi)
+    cos_chi_psi, sin_chi_psi = cch * cps + sch * sps, sch * cps - cch * sps
+    turn = gravity_m_s2 * sph / cph
+    a[:, :] = 0.0
+    a[0, 2] = cch
+    a[0, 3] = -vg * sch
+    a[1, 2] = sch
+    a[1, 3] = vg * cch
     a[2, 2] = va * psi_dot * (we * cps - wn * sps) * dinv_vg
     a[2, 4] = -va * psi_dot * sps * inv_vg
     a[2, 5] = va * psi_dot * cps * inv_vg
-    a[3, 2] = turn * np.cos(chi - psi) * dinv_vg
-    a[3, 3] = -turn * np.sin(chi - psi) * inv_vg
-    dvg_dpsi, dchi_dpsi = _heading_derivatives(x, u, psi, gravity_m_s2)
+    a[3, 2] = turn * cos_chi_psi * dinv_vg
+    a[3, 3] = -turn * sin_chi_psi * inv_vg
+    # d(V_g_dot, chi_dot)/dpsi at the corrected heading: the deviation columns and the heading input
+    dvg_dpsi = -va * psi_dot * (wn * cps + we * sps) * inv_vg
+    dchi_dpsi = turn * sin_chi_psi * inv_vg
     for j in range(3):
         a[2, I_DEVIATION + j] = dvg_dpsi * dpsi_ddev[j]
         a[3, I_DEVIATION + j] = dchi_dpsi * dpsi_ddev[j]
-    return a
-
-
-@njit(cache=True)
-def stage3_fw_G(x, u, gravity_m_s2):
-    """df/d(V_a, psi_2) of :func:`stage3_fw_f` (input-noise Jacobian for airspeed and stage-2 heading), (9, 2)."""
-    vg, wn, we = x[2], x[4], x[5]
-    psi, dpsi_dyaw2, _ = corrected_heading(x, u[5])
-    inv_vg, _ = _inverse_speed(vg)
-    psi_dot = euler_yaw_rate(u[3], u[4], u[1], u[2])
-    dvg_dpsi, dchi_dpsi = _heading_derivatives(x, u, psi, gravity_m_s2)
-    g = np.zeros((N_STAGE3_FW, 2))
-    g[2, 0] = psi_dot * (we * np.cos(psi) - wn * np.sin(psi)) * inv_vg
+    g[:, :] = 0.0
+    g[2, 0] = psi_dot * (we * cps - wn * sps) * inv_vg
     g[2, 1] = dvg_dpsi * dpsi_dyaw2
     g[3, 1] = dchi_dpsi * dpsi_dyaw2
-    return g
+    return a, g
 
 
 @njit(cache=True)
@@ -476,20 +474,23 @@ def stage3_fw_h_gps_velocity(x):
 
 @njit(cache=True)
 def ned_acceleration(phi, theta, psi, specific_force_b, gravity_m_s2):
-    """Kinematic NED acceleration a_n = R_nb f_b + g_n [m/s^2], shape (3,)."""
-    r = rotation_nb(phi, theta, psi)
-    a = np.zeros(3)
-    for i in range(3):
-        for j in range(3):
-            a[i] += r[i, j] * specific_force_b[j]
-    a[2] += gravity_m_s2
-    return a
+    """Kinematic NED acceleration a_n = R_nb f_b + g_n [m/s^2], a 3-tuple."""
+    cph, sph = np.cos(phi), np.sin(phi)
+    cth, sth = np.cos(theta), np.sin(theta)
+    cps, sps = np.cos(psi), np.sin(psi)
+    f0, f1, f2 = specific_force_b[0], specific_force_b[1], specific_force_b[2]
+    # R_nb = R_z(psi) R_y(theta) R_x(phi): rotate by roll, then pitch, then yaw
+    a1 = cph * f1 - sph * f2
+    a2 = sph * f1 + cph * f2
+    b0 = cth * f0 + sth * a2
+    return cps * b0 - sps * a1, sps * b0 + cps * a1, cth * a2 - sth * f0 + gravity_m_s2
 
 
 @njit(cache=True)
 def stage3_mc_f(x, accel_ne_m_s2):
-    """Constant-acceleration kinematics (p_n, p_e, v_n, v_e)_dot = (v_n, v_e, a_n, a_e); A = [[0, I], [0, 0]]."""
-    return np.array((x[2], x[3], accel_ne_m_s2[0], accel_ne_m_s2[1]))
+    """Constant-acceleration kinematics (p_n, p_e, v_n, v_e)_dot = (v_n, v_e, a_n, a_e), a 4-tuple;
+    A = [[0, I], [0, 0]]."""
+    return x[2], x[3], accel_ne_m_s2[0], accel_ne_m_s2[1]
 
 
 @njit(cache=True)

@@ -83,6 +83,8 @@ def test_stage1_A_matches_finite_differences(rng):
         rates = rng.normal(0, 0.5, 3)
         np.testing.assert_allclose(m.stage1_A(x, rates), numerical_jacobian(m.stage1_f, x, rates),
                                    rtol=RTOL, atol=ATOL)
+        out = np.full((2, 2), np.nan)  # the output-array form writes every entry
+        np.testing.assert_array_equal(m.stage1_A(x, rates, out), m.stage1_A(x, rates))
 
 
 def test_stage1_G_matches_finite_differences(rng):
@@ -98,8 +100,8 @@ def test_stage1_C_airspeed_matches_finite_differences(rng):
         x = np.array(random_attitude(rng)[:2])
         rates = rng.normal(0, 0.5, 3)
         va = rng.uniform(0, 30)
-        numerical = numerical_jacobian(m.stage1_h_airspeed, x, rates, va, GRAVITY)
-        np.testing.assert_allclose(m.stage1_C_airspeed(x, rates, va, GRAVITY), numerical, rtol=RTOL, atol=ATOL)
+        numerical = numerical_jacobian(lambda s, *a: m.stage1_h_airspeed(s, *a)[0], x, rates, va, GRAVITY)
+        np.testing.assert_allclose(m.stage1_h_airspeed(x, rates, va, GRAVITY)[1], numerical, rtol=RTOL, atol=ATOL)
 
 
 def test_stage1_h_airspeed_is_steady_flight_specific_force(rng):
@@ -110,7 +112,7 @@ def test_stage1_h_airspeed_is_steady_flight_specific_force(rng):
         va = rng.uniform(0, 30)
         v_b = va * np.array([np.cos(theta), 0.0, np.sin(theta)])
         expected = np.cross(rates, v_b) - euler_to_matrix(phi, theta, psi).T @ [0.0, 0.0, GRAVITY]
-        np.testing.assert_allclose(m.stage1_h_airspeed(np.array([phi, theta]), rates, va, GRAVITY), expected,
+        np.testing.assert_allclose(m.stage1_h_airspeed(np.array([phi, theta]), rates, va, GRAVITY)[0], expected,
                                    rtol=1e-12, atol=1e-12)
 
 
@@ -128,8 +130,9 @@ def test_stage1_acceleration_form(rng):
         np.testing.assert_allclose(c, numerical, rtol=RTOL, atol=ATOL)
         h0, c0 = m.stage1_h_acceleration(x, psi, np.zeros(3), GRAVITY)
         rates = rng.normal(0, 0.5, 3)
-        np.testing.assert_allclose(h0, m.stage1_h_airspeed(x, rates, 0.0, GRAVITY), atol=1e-12)
-        np.testing.assert_allclose(c0, m.stage1_C_airspeed(x, rates, 0.0, GRAVITY), atol=1e-12)
+        h_va0, c_va0 = m.stage1_h_airspeed(x, rates, 0.0, GRAVITY)
+        np.testing.assert_allclose(h0, h_va0, atol=1e-12)
+        np.testing.assert_allclose(c0, c_va0, atol=1e-12)
 
 
 # ---------------------------------------------------------------- stage 2
@@ -139,8 +142,9 @@ def test_stage2_G_matches_finite_differences(rng):
     for _ in range(N_RANDOM):
         phi, theta, _ = random_attitude(rng)
         rates = rng.normal(0, 0.5, 3)
-        numerical = numerical_jacobian(lambda w, a, b: [m.euler_yaw_rate(a, b, w[1], w[2])], rates, phi, theta)
-        np.testing.assert_allclose(m.stage2_G(phi, theta), numerical, rtol=RTOL, atol=ATOL)
+        trig = np.sin(phi), np.cos(phi), np.cos(theta)
+        numerical = numerical_jacobian(lambda w, a: [m.euler_yaw_rate(*a, w[1], w[2])], rates, trig)
+        np.testing.assert_allclose(m.stage2_G(*trig), numerical[0], rtol=RTOL, atol=ATOL)
 
 
 def test_stage2_h_and_jacobians(rng):
@@ -178,7 +182,7 @@ def test_stage3_fw_A_matches_finite_differences(rng):
     for _ in range(N_RANDOM):
         x, u = random_fw_state(rng)
         numerical = numerical_jacobian(m.stage3_fw_f, x, u, GRAVITY)
-        np.testing.assert_allclose(m.stage3_fw_A(x, u, GRAVITY), numerical, rtol=RTOL, atol=ATOL)
+        np.testing.assert_allclose(m.stage3_fw_jacobians(x, u, GRAVITY)[0], numerical, rtol=RTOL, atol=ATOL)
 
 
 def test_stage3_fw_G_matches_finite_differences(rng):
@@ -191,7 +195,11 @@ def test_stage3_fw_G_matches_finite_differences(rng):
             return m.stage3_fw_f(x, v, GRAVITY)
 
         numerical = numerical_jacobian(f_of_inputs, u[[0, 5]])
-        np.testing.assert_allclose(m.stage3_fw_G(x, u, GRAVITY), numerical, rtol=RTOL, atol=ATOL)
+        np.testing.assert_allclose(m.stage3_fw_jacobians(x, u, GRAVITY)[1], numerical, rtol=RTOL, atol=ATOL)
+        a_out, g_out = np.full((9, 9), np.nan), np.full((9, 2), np.nan)  # the output-array form writes everything
+        m.stage3_fw_jacobians(x, u, GRAVITY, a_out, g_out)
+        np.testing.assert_array_equal(a_out, m.stage3_fw_jacobians(x, u, GRAVITY)[0])
+        np.testing.assert_array_equal(g_out, m.stage3_fw_jacobians(x, u, GRAVITY)[1])
 
 
 def test_stage3_fw_ground_speed_rate_is_wind_triangle_derivative(rng):
@@ -201,7 +209,7 @@ def test_stage3_fw_ground_speed_rate_is_wind_triangle_derivative(rng):
         va, psi = u[0], m.corrected_heading(x, u[5])[0]
         wind = x[4:6] * min(1.0, 0.5 * va / np.linalg.norm(x[4:6]))  # keep V_g > V_min: no frozen 1/V_g
         x[4:6] = wind
-        psi_dot = m.euler_yaw_rate(u[3], u[4], u[1], u[2])
+        psi_dot = m.euler_yaw_rate(np.sin(u[3]), np.cos(u[3]), np.cos(u[4]), u[1], u[2])
         ground = va * np.array([np.cos(psi), np.sin(psi)]) + wind
         x[2] = np.linalg.norm(ground)
         dt = 1e-6
@@ -214,7 +222,7 @@ def test_stage3_fw_low_speed_guard_is_consistent():
     """Below V_min the 1/V_g factors freeze: f stays finite and A's V_g column has no 1/V_g^2 terms."""
     x = np.array([0.0, 0.0, 0.5, 0.3, 1.0, -2.0, 0.1, -0.05, 0.03])
     u = np.array([12.0, 0.1, 0.2, 0.3, 0.05, 0.4])
-    np.testing.assert_allclose(m.stage3_fw_A(x, u, GRAVITY),
+    np.testing.assert_allclose(m.stage3_fw_jacobians(x, u, GRAVITY)[0],
                                numerical_jacobian(m.stage3_fw_f, x, u, GRAVITY), rtol=RTOL, atol=ATOL)
     assert np.all(np.isfinite(m.stage3_fw_f(np.zeros(m.N_STAGE3_FW), u, GRAVITY)))
 
