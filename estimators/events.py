@@ -455,20 +455,21 @@ def _imu_samples(flight_log: FlightLog, config: EstimatorConfig, warnings: list[
     if not flight_log.has("imu"):
         raise InputError("no IMU data (sensor_combined): nothing to propagate", source=source, field="imu")
     frame = flight_log["imu"]
-    columns = ("gyro_x_rad_s", "gyro_y_rad_s", "gyro_z_rad_s", "accel_x_m_s2", "accel_y_m_s2", "accel_z_m_s2")
-    missing = [c for c in columns if c not in frame.columns]
+    gyro_columns = ("gyro_x_rad_s", "gyro_y_rad_s", "gyro_z_rad_s")
+    accel_columns = ("accel_x_m_s2", "accel_y_m_s2", "accel_z_m_s2")
+    missing = [c for c in (*gyro_columns, *accel_columns) if c not in frame.columns]
     if missing:
         raise InputError(f"missing columns {missing}", source=source, field="imu")
-    time_s = frame.index.to_numpy(dtype=float)
-    data = frame.loc[:, list(columns)].to_numpy(dtype=float)
-    keep = np.isfinite(time_s) & np.isfinite(data).all(axis=1)
-    time_s, data = time_s[keep], data[keep]
-    # keep strictly increasing times (a duplicate or a step back repeats a sample)
-    increasing = np.ones(len(time_s), dtype=bool)
-    if len(time_s) > 1:
-        increasing[1:] = time_s[1:] > np.maximum.accumulate(time_s)[:-1]
-    n_dropped = int(len(keep) - len(time_s) + np.count_nonzero(~increasing))
-    time_s, data = time_s[increasing], data[increasing]
+    # writable copies (the kernels' compiled signatures take writable arrays), each made once
+    time_s = frame.index.to_numpy(dtype=float, copy=True)
+    columns = [frame[c].to_numpy(dtype=float) for c in (*gyro_columns, *accel_columns)]
+    gyro, accel = np.column_stack(columns[:3]), np.column_stack(columns[3:])
+    keep = np.logical_and.reduce([np.isfinite(time_s), *(np.isfinite(column) for column in columns)])
+    # of the finite rows, keep strictly increasing times (a duplicate or a step back repeats a sample)
+    keep[keep] = _new_samples(time_s[keep])
+    n_dropped = int(np.count_nonzero(~keep))
+    if n_dropped:
+        time_s, gyro, accel = time_s[keep], gyro[keep], accel[keep]
     if len(time_s) < 10:
         raise InputError(f"only {len(time_s)} usable IMU rows", source=source, field="imu")
     dt = np.diff(time_s)
@@ -480,8 +481,7 @@ def _imu_samples(flight_log: FlightLog, config: EstimatorConfig, warnings: list[
     if gaps:
         warnings.append(f"IMU: {len(gaps)} gaps (longest {max(g[1] for g in gaps):.3f} s), propagated with the "
                         "held rate")
-    return ImuSamples(time_s=time_s, gyro_rad_s=np.ascontiguousarray(data[:, :3]),
-                      accel_m_s2=np.ascontiguousarray(data[:, 3:]), median_dt_s=median_dt, gaps=gaps,
+    return ImuSamples(time_s=time_s, gyro_rad_s=gyro, accel_m_s2=accel, median_dt_s=median_dt, gaps=gaps,
                       n_dropped=n_dropped)
 
 

@@ -219,6 +219,18 @@ def test_sample_time_and_duplicates():
     imu = log["imu"]
     log.streams["imu"] = pd.concat([imu.iloc[:50], imu.iloc[49:]])
     assert events.build_replay_inputs(log).imu.n_dropped == 1
+    # so are a non-finite row and a step back in time
+    bad = imu.copy()
+    bad.iloc[10, bad.columns.get_loc("accel_y_m_s2")] = np.nan
+    time_s = bad.index.to_numpy(copy=True)
+    time_s[20] = time_s[18]
+    bad.index = pd.Index(time_s, name=imu.index.name)
+    log.streams["imu"] = bad
+    samples = events.build_replay_inputs(log).imu
+    assert samples.n_dropped == 2 and len(samples.time_s) == len(bad) - 2
+    assert np.all(np.diff(samples.time_s) > 0) and np.isfinite(samples.accel_m_s2).all()
+    np.testing.assert_array_equal(samples.gyro_rad_s[10], bad.iloc[11][["gyro_x_rad_s", "gyro_y_rad_s",
+                                                                         "gyro_z_rad_s"]].to_numpy(float))
 
 
 def test_baro_offset_and_heights():
