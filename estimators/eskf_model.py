@@ -346,20 +346,38 @@ def process_noise(F, gyro_psd, accel_psd, dt_s, Q_dyn):
 
 
 @njit(cache=True)
-def propagate_covariance(P, F_dyn, Q_dyn, walk_psd, dt_s, work):
+def sparse_dynamic_rows(F, sel, values, cols, counts):
+    """The dynamic rows of ``F`` (NE, NE) over the active error states ``sel`` as sparse rows for
+    :func:`propagate_covariance`: row ``i`` has ``counts[i]`` non-zeros ``values[i, c]`` in the active columns
+    ``cols[i, c]`` (increasing); ``values``, ``cols`` (N_DYNAMIC, n), ``counts`` (N_DYNAMIC,) are outputs.
+
+    About 40 % of the entries are non-zero (no wind, magnetometer or baro columns; theta rows only see theta and
+    b_g); listing them once keeps the data-dependent branch out of the products."""
+    for i in range(N_DYNAMIC):
+        count = 0
+        for a in range(sel.shape[0]):
+            f = F[i, sel[a]]
+            values[i, count] = f
+            cols[i, count] = a
+            count += 1 if f != 0.0 else 0  # branch-free compaction: a zero is overwritten by the next entry
+        counts[i] = count
+
+
+@njit(cache=True)
+def propagate_covariance(P, values, cols, counts, Q_dyn, walk_psd, dt_s, work):
     """``P <- F P F^T + Q`` for the error-state transition, in place, exactly symmetric.
 
-    ``F`` is the identity except its first ``N_DYNAMIC`` rows ``F_dyn`` (p, v, theta lead the active states; the
-    biases, wind and offsets are random walks), ``Q`` is ``Q_dyn`` on the dynamic block plus ``diag(K^2) dt``.
-    With ``W = F_dyn P``: ``P_dd <- W F_dyn^T + Q_dyn``, ``P_ds <- W_s`` and ``P_ss <- P_ss + diag(K^2 dt)``, so the
-    static rows are never multiplied (the dense product costs about three times more).
+    ``F`` is the identity except its first ``N_DYNAMIC`` rows ``F_d`` (p, v, theta lead the active states; the
+    biases, wind and offsets are random walks), given as sparse rows (:func:`sparse_dynamic_rows`); ``Q`` is
+    ``Q_dyn`` on the dynamic block plus ``diag(K^2) dt``. With ``W = F_d P``: ``P_dd <- W F_d^T + Q_dyn``,
+    ``P_ds <- W_s`` and ``P_ss <- P_ss + diag(K^2 dt)``, so the static rows are never multiplied.
 
     Parameters
     ----------
     P : ndarray (n, n)
         Error covariance over the active error states.
-    F_dyn : ndarray (N_DYNAMIC, n)
-        The dynamic rows of F over the active error states.
+    values, cols, counts : ndarrays (N_DYNAMIC, n), (N_DYNAMIC, n), (N_DYNAMIC,)
+        The dynamic rows of F over the active error states (:func:`sparse_dynamic_rows`).
     Q_dyn : ndarray (N_DYNAMIC, N_DYNAMIC)
         Input noise (:func:`process_noise`).
     walk_psd : ndarray (n,)
@@ -369,24 +387,24 @@ def propagate_covariance(P, F_dyn, Q_dyn, walk_psd, dt_s, work):
     work : ndarray (n, n)
         Scratch (its first N_DYNAMIC rows hold ``W``).
     """
-    nd, n = F_dyn.shape
+    n = P.shape[0]
     W = work
-    for i in range(nd):
+    for i in range(N_DYNAMIC):
         for j in range(n):
             W[i, j] = 0.0
-        for k in range(n):
-            f_ik = F_dyn[i, k]
-            if f_ik != 0.0:  # F_dyn is sparse (zero wind, magnetometer and baro columns, theta rows)
-                for j in range(n):
-                    W[i, j] += f_ik * P[k, j]
-    for i in range(nd):
-        for j in range(i, nd):
+        for c in range(counts[i]):
+            f_ik = values[i, c]
+            k = cols[i, c]
+            for j in range(n):
+                W[i, j] += f_ik * P[k, j]
+    for i in range(N_DYNAMIC):
+        for j in range(i, N_DYNAMIC):
             s = Q_dyn[i, j]
-            for k in range(n):
-                s += W[i, k] * F_dyn[j, k]
+            for c in range(counts[j]):
+                s += W[i, cols[j, c]] * values[j, c]
             P[i, j] = s
             P[j, i] = s
-        for j in range(nd, n):
+        for j in range(N_DYNAMIC, n):
             P[i, j] = W[i, j]
             P[j, i] = W[i, j]
     for i in range(n):

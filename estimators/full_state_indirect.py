@@ -211,26 +211,24 @@ def measurement(x, kind, comp, values, field, lever_b, gyro, H):
 
 
 @njit(cache=True)
-def _flush_covariance(P, x_cov, acc, imu_psd, walk_psd, sel, min_var, max_var, mean_input, F_full, F_work, F_dyn,
-                      Q_dyn, work, counters):
+def _flush_covariance(P, x_cov, acc, imu_psd, walk_psd, sel, min_var, max_var, mean_input, F_full, F_work, F_values,
+                      F_cols, F_counts, Q_dyn, work, counters):
     """Propagate P over the accumulated interval ``acc[0]`` with the mean inputs ``acc[1:7] / acc[0]``, from the
     nominal ``x_cov`` at its start (:func:`estimators.eskf_model.propagate_covariance`); variance limits every
     time, the positive-definiteness repair every ``PD_CHECK_EVERY`` propagations (as the direct filter).
     ``imu_psd`` (2, 3): squared gyro and accelerometer noise densities; ``walk_psd`` (n,): squared random-walk
-    densities of the active states; ``mean_input`` (2, 3), ``F_work`` (:func:`estimators.eskf_model.transition_work`),
-    ``F_dyn`` (N_DYNAMIC, n), ``Q_dyn`` (N_DYNAMIC, N_DYNAMIC) and ``work`` (n, n) scratch; ``F_full`` the (NE, NE)
-    transition, kept at the identity off its blocks."""
+    densities of the active states; ``F_full`` the (NE, NE) transition, kept at the identity off its blocks;
+    scratch: ``mean_input`` (2, 3), ``F_work`` (:func:`estimators.eskf_model.transition_work`), the sparse dynamic
+    rows ``F_values``, ``F_cols``, ``F_counts`` (:func:`estimators.eskf_model.sparse_dynamic_rows`), ``Q_dyn``
+    (N_DYNAMIC, N_DYNAMIC) and ``work`` (n, n)."""
     dt = acc[0]
     for i in range(3):
         mean_input[0, i] = acc[1 + i] / dt
         mean_input[1, i] = acc[4 + i] / dt
     m.transition(x_cov, mean_input[0], mean_input[1], dt, F_full, F_work)
     m.process_noise(F_full, imu_psd[0], imu_psd[1], dt, Q_dyn)
-    n = sel.shape[0]
-    for i in range(m.N_DYNAMIC):
-        for a in range(n):
-            F_dyn[i, a] = F_full[i, sel[a]]
-    m.propagate_covariance(P, F_dyn, Q_dyn, walk_psd, dt, work)
+    m.sparse_dynamic_rows(F_full, sel, F_values, F_cols, F_counts)
+    m.propagate_covariance(P, F_values, F_cols, F_counts, Q_dyn, walk_psd, dt, work)
     counters[C_FLUSHES] += 1
     if ekf_core.scheduled_repair(P, min_var, max_var, work, EIG_FLOOR, counters[C_FLUSHES], PD_CHECK_EVERY):
         counters[C_REPAIRS] += 1
@@ -349,7 +347,9 @@ def run_kernel(imu_t, imu_gyro, imu_accel, ev_t, ev_kind, ev_imu, ev_val, ev_var
     x_cov = x0.copy()
     F_full = m.identity_transition()
     F_work = m.transition_work()
-    F_dyn = np.empty((m.N_DYNAMIC, n))
+    F_values = np.empty((m.N_DYNAMIC, n))
+    F_cols = np.empty((m.N_DYNAMIC, n), dtype=np.int64)
+    F_counts = np.empty(m.N_DYNAMIC, dtype=np.int64)
     Q_dyn = np.empty((m.N_DYNAMIC, m.N_DYNAMIC))
     walk_psd = rw_psd[sel]
     T = np.empty((n, n))
@@ -400,7 +400,7 @@ def run_kernel(imu_t, imu_gyro, imu_accel, ev_t, ev_kind, ev_imu, ev_val, ev_var
                 t = t_next
                 if acc[0] >= cov_dt * (1.0 - 1e-9):
                     _flush_covariance(P, x_cov, acc, imu_psd, walk_psd, sel, min_var, max_var, mean_input, F_full,
-                                      F_work, F_dyn, Q_dyn, work, counters)
+                                      F_work, F_values, F_cols, F_counts, Q_dyn, work, counters)
                     if not _healthy(x, P, zero_error):
                         _reset(x, P, x_safe, P0, counters)
             if not at_event:
@@ -426,7 +426,7 @@ def run_kernel(imu_t, imu_gyro, imu_accel, ev_t, ev_kind, ev_imu, ev_val, ev_var
             # at most 1 / covariance_rate_hz old)
             if acc[0] > 0.0:
                 _flush_covariance(P, x_cov, acc, imu_psd, walk_psd, sel, min_var, max_var, mean_input, F_full,
-                                  F_work, F_dyn, Q_dyn, work, counters)
+                                  F_work, F_values, F_cols, F_counts, Q_dyn, work, counters)
             is_gps = kind in (GPS_POS, GPS_VEL)
             if is_gps:
                 # (re)acquisition (math note 2.3): position and velocity to the GPS, see reset_to_gps
@@ -481,7 +481,7 @@ def run_kernel(imu_t, imu_gyro, imu_accel, ev_t, ev_kind, ev_imu, ev_val, ev_var
             j += 1
     if acc[0] > 0.0:
         _flush_covariance(P, x_cov, acc, imu_psd, walk_psd, sel, min_var, max_var, mean_input, F_full, F_work,
-                          F_dyn, Q_dyn, work, counters)
+                          F_values, F_cols, F_counts, Q_dyn, work, counters)
     counters[C_OUTPUTS] = n_out
     return x, P
 

@@ -202,8 +202,14 @@ def test_covariance_propagation_is_f_p_ft_plus_q(rng, drop):
     Q[:m.N_DYNAMIC, :m.N_DYNAMIC] += Q_dyn
     Fs = F[np.ix_(sel, sel)]
     expected = Fs @ P @ Fs.T + Q[np.ix_(sel, sel)]
-    m.propagate_covariance(P, np.ascontiguousarray(F[:m.N_DYNAMIC, sel]), Q_dyn, walk_psd[sel], dt,
-                           np.empty_like(P))
+    values, cols = np.empty((m.N_DYNAMIC, len(sel))), np.empty((m.N_DYNAMIC, len(sel)), dtype=np.int64)
+    counts = np.empty(m.N_DYNAMIC, dtype=np.int64)
+    m.sparse_dynamic_rows(F, sel, values, cols, counts)
+    for i in range(m.N_DYNAMIC):
+        nonzero = np.flatnonzero(F[i, sel])
+        np.testing.assert_array_equal(cols[i, :counts[i]], nonzero)
+        np.testing.assert_array_equal(values[i, :counts[i]], F[i, sel[nonzero]])
+    m.propagate_covariance(P, values, cols, counts, Q_dyn, walk_psd[sel], dt, np.empty_like(P))
     np.testing.assert_allclose(P, expected, rtol=1e-12, atol=1e-12)
     np.testing.assert_array_equal(P, P.T)
 
