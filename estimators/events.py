@@ -746,20 +746,24 @@ def _merge_events(parts, imu_time_s: np.ndarray) -> MeasurementEvents:
     parts = sorted(parts, key=lambda part: part[1])
     time_s = np.concatenate([p[0] for p in parts])
     kind = np.concatenate([np.full(len(p[0]), p[1], dtype=np.int64) for p in parts])
-    values = np.zeros((len(time_s), N_EVENT_VALUES))
-    variances = np.zeros((len(time_s), N_EVENT_VALUES))
-    row = 0
-    for t, _, v, r in parts:
-        n = len(t)
-        values[row:row + n, :v.shape[1]] = v
-        variances[row:row + n, :r.shape[1]] = r
-        row += n
     inside = np.flatnonzero((time_s >= imu_time_s[0]) & (time_s <= imu_time_s[-1]))
     order = inside[np.argsort(time_s[inside], kind="stable")]
+    # each part's values go straight to their sorted rows (-1: outside the IMU span)
+    sorted_row = np.full(len(time_s), -1)
+    sorted_row[order] = np.arange(len(order))
+    values = np.zeros((len(order), N_EVENT_VALUES))
+    variances = np.zeros((len(order), N_EVENT_VALUES))
+    start = 0
+    for t, _, v, r in parts:
+        rows = sorted_row[start:start + len(t)]
+        kept = rows >= 0
+        values[rows[kept], :v.shape[1]] = v[kept]
+        variances[rows[kept], :r.shape[1]] = r[kept]
+        start += len(t)
     time_s = time_s[order]
     imu_index = np.searchsorted(imu_time_s, time_s, side="left").astype(np.int64)
-    return MeasurementEvents(time_s=time_s, kind=kind[order], imu_index=imu_index, values=values[order],
-                             variances=variances[order])
+    return MeasurementEvents(time_s=time_s, kind=kind[order], imu_index=imu_index, values=values,
+                             variances=variances)
 
 
 # ----------------------------------------------------------------------------------------------------------------
