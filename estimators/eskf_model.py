@@ -71,16 +71,9 @@ _SMALL_ANGLE_RAD = 1e-6
 # sample, and a 3-vector or 3 x 3 array per call would cost a heap allocation each.
 # ----------------------------------------------------------------------------------------------------------------
 @njit(cache=True)
-def quat_to_dcm(q):
-    """Rotation matrix R(q) (maps body vectors into NED for the attitude quaternion), shape (3, 3)."""
-    out = np.empty((3, 3))
-    _dcm_into(q[0], q[1], q[2], q[3], out)
-    return out
-
-
-@njit(cache=True)
 def _dcm_into(w, x, y, z, out):
-    """Rotation matrix of the unit quaternion (w, x, y, z) written into ``out`` (3, 3)."""
+    """Rotation matrix R(q) of the unit quaternion (w, x, y, z) (maps body vectors into NED for the attitude
+    quaternion) written into ``out`` (3, 3)."""
     out[0, 0] = 1.0 - 2.0 * (y * y + z * z)
     out[0, 1] = 2.0 * (x * y - w * z)
     out[0, 2] = 2.0 * (x * z + w * y)

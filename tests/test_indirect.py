@@ -24,7 +24,7 @@ from estimators import full_state_indirect as fsi
 from estimators.config import EstimatorConfig
 from estimators.evaluation import PAPER_TABLE_2, config_for_simulation, rms_errors
 from ingest import load_sun_device, with_sun
-from ingest.frames import euler_to_matrix
+from ingest.frames import euler_to_matrix, quat_to_matrix
 from ingest.ulog_reader import load_flight_log
 from tests.conftest import SAMPLE_LOGS_DIR
 from tests.estimators_synthetic import synthetic_flight
@@ -80,7 +80,7 @@ def test_initial_attitude_covariance_is_the_euler_sigmas_mapped_to_body_error():
     sigmas = np.radians([CONFIG.initial.roll_pitch_deg, CONFIG.initial.roll_pitch_deg, CONFIG.initial.yaw_deg])
     np.testing.assert_allclose(S @ P_th @ S.T, np.diag(sigmas ** 2), atol=1e-15)
     # initial quaternion is the aligned attitude
-    r_nb = m.quat_to_dcm(k["x0"][m.X_Q:m.X_Q + 4])
+    r_nb = quat_to_matrix(k["x0"][m.X_Q:m.X_Q + 4])
     align = inputs.alignment
     np.testing.assert_allclose(r_nb, euler_to_matrix(align.roll_rad, align.pitch_rad, align.yaw_rad), atol=1e-12)
 

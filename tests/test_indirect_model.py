@@ -10,6 +10,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from estimators import eskf_model as m
+from ingest.frames import quat_to_matrix
 
 GRAVITY_M_S2 = 9.80665
 
@@ -89,18 +90,18 @@ def test_rotation_helpers_match_scipy(rng):
     rotvec = rng.normal(0.0, 1.0, 3)
     q = np.array(m.quat_exp(*rotvec))
     expected = Rotation.from_rotvec(rotvec)
-    np.testing.assert_allclose(m.quat_to_dcm(q), expected.as_matrix(), atol=1e-14)
+    np.testing.assert_allclose(quat_to_matrix(q), expected.as_matrix(), atol=1e-14)
     q2 = np.roll(Rotation.random(random_state=rng).as_quat(), 1)
     product = np.array(m.quat_multiply(*q2, *q))
     expected_product = Rotation.from_quat(np.roll(q2, -1)) * expected
-    np.testing.assert_allclose(m.quat_to_dcm(product), expected_product.as_matrix(), atol=1e-14)
+    np.testing.assert_allclose(quat_to_matrix(product), expected_product.as_matrix(), atol=1e-14)
     v = rng.normal(size=3)
     r2 = Rotation.from_quat(np.roll(q2, -1))
     np.testing.assert_allclose(m.rotate(*q2, *v), r2.apply(v), atol=1e-14)
     np.testing.assert_allclose(m.rotate(q2[0], *-q2[1:], *v), r2.inv().apply(v), atol=1e-14)
     # Small-angle branch continuous with the closed form.
     tiny = np.array([3e-7, -2e-7, 1e-7])
-    np.testing.assert_allclose(m.quat_to_dcm(np.array(m.quat_exp(*tiny))), Rotation.from_rotvec(tiny).as_matrix(),
+    np.testing.assert_allclose(quat_to_matrix(np.array(m.quat_exp(*tiny))), Rotation.from_rotvec(tiny).as_matrix(),
                                atol=1e-15)
 
 
@@ -148,7 +149,7 @@ def test_nominal_propagation_constant_rate_is_exact():
     accel = np.zeros(3)  # free fall
     for _ in range(100):
         m.propagate_nominal(x, gyro, accel, 0.01, GRAVITY_M_S2)
-    np.testing.assert_allclose(m.quat_to_dcm(x[m.X_Q:m.X_Q + 4]), Rotation.from_rotvec(gyro).as_matrix(),
+    np.testing.assert_allclose(quat_to_matrix(x[m.X_Q:m.X_Q + 4]), Rotation.from_rotvec(gyro).as_matrix(),
                                atol=1e-12)
     np.testing.assert_allclose(x[m.X_V:m.X_V + 3], [0.0, 0.0, GRAVITY_M_S2], atol=1e-12)
     np.testing.assert_allclose(x[m.X_P:m.X_P + 3], [0.0, 0.0, GRAVITY_M_S2 / 2], atol=1e-12)
@@ -315,5 +316,5 @@ def test_nominal_step_matches_matrix_form(rng):
     np.testing.assert_allclose(out[m.X_P:m.X_P + 3], x[m.X_P:m.X_P + 3] + x[m.X_V:m.X_V + 3] * dt + a * dt ** 2 / 2,
                                atol=1e-12)
     expected_r = (r0 * Rotation.from_rotvec(omega * dt)).as_matrix()
-    np.testing.assert_allclose(m.quat_to_dcm(out[m.X_Q:m.X_Q + 4]), expected_r, atol=1e-14)
+    np.testing.assert_allclose(quat_to_matrix(out[m.X_Q:m.X_Q + 4]), expected_r, atol=1e-14)
     np.testing.assert_array_equal(out[m.X_BG:], x[m.X_BG:])
