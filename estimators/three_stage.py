@@ -286,6 +286,10 @@ class KernelParams(NamedTuple):
 
 # ----------------------------------------------------------------------------------------------------------------
 # stage steps (numba)
+#
+# The steps called per sample or per update are inline="always": a non-inlined numba call that branches keeps a
+# reference-count pair per array argument (and per array in a tuple argument), which costs more than these small
+# computations.
 
 
 class StageWork(NamedTuple):
@@ -379,7 +383,7 @@ def _add_input_noise(G, variances, scale, Q):
                     Q[i, j] += g_ic * G[j, c]
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _sandwich(J, P, m, out):
     """``out[:m, :m] = J[:m] P J[:m]^T`` for small matrices."""
     n = P.shape[0]
@@ -402,7 +406,7 @@ def _quadratic_form(v, P, first):
     return s
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _forward_solve(L, B, m):
     """``B[:m] <- L^-1 B[:m]`` in place for the lower-triangular ``L[:m, :m]`` and ``B`` (>= m, k)."""
     k = B.shape[1]
@@ -414,7 +418,7 @@ def _forward_solve(L, B, m):
             B[i, c] /= L[i, i]
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _cholesky_lower(M, m, L):
     """Lower Cholesky factor of ``M[:m, :m]`` into ``L`` (NaN when it is not positive definite)."""
     if not ekf_core.cholesky_lower(M, L, m, 0.0):
@@ -511,11 +515,10 @@ def _record(diag_f, diag_i, counters, t, sensor, component, nu, s_var, nis, acce
     ekf_core.record_update(diag_f, diag_i, counters, t, sensor, component, nu, s_var, nis, accepted)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _stage1_model(x1, yaw_rad, rates, va, accel_n, airspeed_model, gravity_m_s2, h, c, jac):
     """Stage-1 accelerometer model into ``h`` (3,) and dh/d(phi, theta) into ``c`` (3, 2): steady flight with
-    airspeed, else the acceleration form (``jac`` (3, 3) scratch). Explicit arrays, not the work tuples: every
-    array argument of a branching numba call costs a reference-count pair."""
+    airspeed, else the acceleration form (``jac`` (3, 3) scratch)."""
     if airspeed_model:
         stage1_h_airspeed(x1, rates, va, gravity_m_s2, h, c)
     else:
@@ -542,7 +545,7 @@ def _stage1_update(t, f_mean, rates_mean, va, accel_n, prm, x1, P1, x2, w, mw, d
                           mw.jac)  # re-linearise
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _whitened_update(t, sensor, x, P, m, nu, H, R, gate_d2, w, mw, diag_f, diag_i, counters):
     """A vector measurement with correlated noise R, gated as a whole, then whitened and fused component-wise.
 
