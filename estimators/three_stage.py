@@ -327,6 +327,7 @@ class MeasurementWork(NamedTuple):
 
 @njit(cache=True)
 def _stage_work(n, n_inputs, n_u):
+    """Work arrays of a stage with ``n`` states, ``n_inputs`` noisy inputs and ``n_u`` model inputs."""
     return StageWork(np.zeros((n, n)), np.zeros((n, n_inputs)), np.zeros((n, n)), np.zeros((n, n)), np.zeros((n, n)),
                      np.zeros(n_u), np.zeros(n_inputs), np.zeros((3, n)), np.zeros(n),
                      np.zeros(n), np.full(n, MIN_VARIANCE))
@@ -334,6 +335,7 @@ def _stage_work(n, n_inputs, n_u):
 
 @njit(cache=True)
 def _measurement_work():
+    """Work arrays of the measurement updates."""
     return MeasurementWork(np.zeros(3), np.zeros((3, 3)), np.zeros((3, 2)), np.zeros(3), np.zeros((3, 2)),
                            np.zeros((3, 1)), np.zeros((3, 3)), np.zeros((3, 3)), np.zeros((3, 3)), np.zeros((3, 1)),
                            np.zeros(8), np.zeros(3))

@@ -2,7 +2,10 @@
 
 Every stage is written as small numba functions over float64 arrays: the state derivative ``f``, its Jacobian
 ``A = df/dx``, the input-noise Jacobian ``G = df/du``, the measurement model ``h`` and its Jacobian ``C = dh/dx``.
-Analytic Jacobians only; ``tests/test_three_stage.py`` checks each against central finite differences.
+Analytic Jacobians only; ``tests/test_three_stage.py`` checks each against central finite differences. The
+functions the kernel calls per sample or per update allocate nothing: matrices go into optional output arrays
+(allocated when None, as the tests call them), the scalar forms take the sines and cosines the kernel shares
+between the stages, and short vectors are returned as tuples.
 
 Frames and units: NED earth frame, FRD body frame, ZYX Euler angles (roll phi, pitch theta, yaw psi) [rad], body
 rates (p, q, r) [rad/s], specific force [m/s^2] (``(0, 0, -g)`` level at rest), speeds [m/s], positions [m].
