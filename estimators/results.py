@@ -158,7 +158,8 @@ def kernel_report(name: str, inputs: ReplayInputs, counters: np.ndarray, *, timi
 def states_frame(time_s, roll_rad, pitch_rad, yaw_rad, position_ned_m, velocity_ned_m_s, wind_ne_m_s,
                  origin: Origin, *, std: dict[str, np.ndarray] | None = None, navigation: bool = True,
                  wind: bool = True, height: bool = True) -> pd.DataFrame:
-    """The states table of one estimator (without the ``estimator`` column).
+    """The states table of one estimator (without the ``estimator`` column); columns passed through unchanged are
+    views of the given arrays, not copies.
 
     Parameters
     ----------
@@ -187,12 +188,11 @@ def states_frame(time_s, roll_rad, pitch_rad, yaw_rad, position_ned_m, velocity_
     k = len(time_s)
     position = np.asarray(position_ned_m, dtype=float).reshape(k, 3)
     velocity = np.asarray(velocity_ned_m_s, dtype=float).reshape(k, 3)
-    nan = np.full(k, np.nan)
     if navigation and origin.source == "gps":
         lat, lon, alt = environment.ned_to_geodetic(position[:, 0], position[:, 1], position[:, 2],
                                                     origin.lat_deg, origin.lon_deg, origin.alt_m)
     else:
-        lat, lon, alt = nan, nan, origin.alt_m - position[:, 2]
+        lat, lon, alt = _missing(k), _missing(k), origin.alt_m - position[:, 2]
     frame = {
         "time_s": time_s,
         "roll_deg": np.degrees(roll_rad),
@@ -200,22 +200,27 @@ def states_frame(time_s, roll_rad, pitch_rad, yaw_rad, position_ned_m, velocity_
         "yaw_deg": (np.degrees(yaw_rad) + 180.0) % 360.0 - 180.0,
         "lat_deg": np.asarray(lat, dtype=float).reshape(k),
         "lon_deg": np.asarray(lon, dtype=float).reshape(k),
-        "alt_m": np.asarray(alt, dtype=float).reshape(k) if height else nan,
-        "vn_m_s": velocity[:, 0] if navigation else nan,
-        "ve_m_s": velocity[:, 1] if navigation else nan,
-        "vd_m_s": velocity[:, 2] if navigation else nan,
-        "wind_n_m_s": np.asarray(wind_ne_m_s)[:, 0] if wind and wind_ne_m_s is not None else nan,
-        "wind_e_m_s": np.asarray(wind_ne_m_s)[:, 1] if wind and wind_ne_m_s is not None else nan,
+        "alt_m": np.asarray(alt, dtype=float).reshape(k) if height else _missing(k),
+        "vn_m_s": velocity[:, 0] if navigation else _missing(k),
+        "ve_m_s": velocity[:, 1] if navigation else _missing(k),
+        "vd_m_s": velocity[:, 2] if navigation else _missing(k),
+        "wind_n_m_s": np.asarray(wind_ne_m_s)[:, 0] if wind and wind_ne_m_s is not None else _missing(k),
+        "wind_e_m_s": np.asarray(wind_ne_m_s)[:, 1] if wind and wind_ne_m_s is not None else _missing(k),
     }
     for name, values in (std or {}).items():
         if name not in STD_COLUMNS:
             raise ValueError(f"unknown std column {name!r}")
         blank = ((not navigation and name[:2] in ("po", "vn", "ve", "vd")) or (not wind and name.startswith("wind"))
                  or (not height and name.startswith("alt")))
-        frame[name] = nan if blank else np.asarray(values, dtype=float).reshape(k)
+        frame[name] = _missing(k) if blank else np.asarray(values, dtype=float).reshape(k)
     # a yaw that wrapped to exactly 180.0 by rounding
     frame["yaw_deg"] = np.where(frame["yaw_deg"] >= 180.0, frame["yaw_deg"] - 360.0, frame["yaw_deg"])
     return pd.DataFrame(frame, copy=False)
+
+
+def _missing(k: int) -> np.ndarray:
+    """A NaN column of length k (its own array: the tables wrap their columns without copying them)."""
+    return np.full(k, np.nan)
 
 
 def diagnostics_frame(diag_f: np.ndarray, diag_i: np.ndarray, count: int) -> pd.DataFrame:

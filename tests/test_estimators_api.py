@@ -12,7 +12,14 @@ import pytest
 from app.cli import main
 from estimators.api import ESTIMATORS, parse_estimator_names, run_estimators
 from estimators.config import EstimatorConfig, config_from_calibration
-from estimators.results import DIAGNOSTIC_COLUMNS, DIAGNOSTIC_SENSOR_NAMES, STATE_COLUMNS, STD_COLUMNS
+from estimators.events import Origin
+from estimators.results import (
+    DIAGNOSTIC_COLUMNS,
+    DIAGNOSTIC_SENSOR_NAMES,
+    STATE_COLUMNS,
+    STD_COLUMNS,
+    states_frame,
+)
 from ingest.errors import InputError
 from tests.estimators_synthetic import synthetic_flight
 
@@ -54,6 +61,21 @@ def test_diagnostics_share_one_vocabulary(flight):
     accel = three_stage[three_stage["sensor"] == "accel"]
     assert set(accel["component"].astype(str)) == {"x", "y", "z"}
     assert diagnostics["component"].notna().all()
+
+
+def test_state_columns_share_no_memory():
+    """states_frame wraps its columns without copying them, so no two columns may be one array (setting a value in
+    one NaN column must not change another)."""
+    k = 5
+    position_velocity = np.zeros((k, 3))
+    states = states_frame(np.arange(k) * 0.02, np.zeros(k), np.zeros(k), np.zeros(k), position_velocity,
+                          position_velocity, None, Origin(math.nan, math.nan, 100.0, "baro"),
+                          std={"vn_m_s_std": np.ones(k), "wind_n_m_s_std": np.ones(k)}, navigation=False, wind=False)
+    columns = [states[column].to_numpy() for column in states.columns]
+    assert not any(np.shares_memory(a, b) for i, a in enumerate(columns) for b in columns[i + 1:])
+    states.loc[0, "vn_m_s"] = 1.0
+    blank = ["lat_deg", "lon_deg", "ve_m_s", "vd_m_s", "wind_n_m_s", "wind_e_m_s", "vn_m_s_std", "wind_n_m_s_std"]
+    assert states.loc[0, blank].isna().all()
 
 
 def test_registry_and_selection(flight):
