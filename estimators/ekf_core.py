@@ -5,8 +5,9 @@ nothing, so the filters' time loops can call it per sample without Python overhe
 (state layout, ``f``, ``A``, ``h``, ``H``); this module owns the generic EKF algebra:
 
 * :func:`transition_matrix` -- ``F = I + A dt + (A dt)^2 / 2`` from a continuous Jacobian ``A``.
-* :func:`propagate_covariance` -- ``P <- F P F^T + Qd`` exploiting that the rows of ``F`` after the states with
-  dynamics are identity rows (bias, wind and offset states: :func:`dynamic_rows`); exactly symmetric.
+* :func:`propagate_sparse` -- ``P <- F P F^T`` for an ``F`` that is the identity after its leading rows with
+  dynamics (bias, wind and offset states), given as sparse rows (:func:`sparse_rows`); exactly symmetric.
+  :func:`propagate_covariance` is the same for a dense ``F`` plus ``Qd``.
 * :func:`scalar_update` -- one scalar measurement in Joseph form with chi-square gating; returns the correction
   ``dx`` (the caller adds it and wraps angles, or injects it into a nominal state), the innovation variance
   ``S`` and the normalised innovation squared ``NIS = nu^2 / S``.
@@ -114,33 +115,65 @@ def transition_matrix(A, dt, F):
 
 
 @njit(cache=True)
-def propagate_covariance(P, F, Qd, work):
-    """``P <- F P F^T + Qd`` for a symmetric ``Qd``; ``P, F, Qd`` (n, n); ``work`` (n, n) scratch.
+def sparse_rows(F, columns, values, cols, counts):
+    """The leading ``m = counts.shape[0]`` rows of ``F`` over the state columns ``columns`` as sparse rows for
+    :func:`propagate_sparse`: row ``i`` has ``counts[i]`` non-zeros ``values[i, c]`` in the columns
+    ``cols[i, c]`` (positions in ``columns``, increasing); ``values``, ``cols`` (m, len(columns)) and ``counts``
+    (m,) are outputs.
 
-    The rows of ``F`` from ``m`` on (:func:`dynamic_rows`) are identity rows, so ``F P`` differs from ``P`` in
-    its first ``m`` rows only (``work``), ``F P F^T`` is ``work F^T`` on the leading ``m x m`` block, ``work``
-    on the off-diagonal blocks and ``P`` elsewhere: exact, and several times cheaper than the dense product for
-    the filters' random-walk states. The result is exactly symmetric.
-    """
+    The filters' dynamic rows are mostly zeros (position rows see velocity and attitude only, attitude rows
+    attitude and gyro bias); listing the non-zeros once keeps the data-dependent branch out of the products."""
+    for i in range(counts.shape[0]):
+        count = 0
+        for a in range(columns.shape[0]):
+            f = F[i, columns[a]]
+            values[i, count] = f
+            cols[i, count] = a
+            count += 1 if f != 0.0 else 0  # branch-free compaction: a zero is overwritten by the next entry
+        counts[i] = count
+
+
+@njit(cache=True)
+def propagate_sparse(P, values, cols, counts, work):
+    """``P <- F P F^T`` in place, exactly symmetric, for an ``F`` that is the identity except its first
+    ``m = counts.shape[0]`` rows ``F_d``, given as sparse rows (:func:`sparse_rows`); the states from ``m`` on
+    are random walks (biases, wind, offsets). With ``W = F_d P`` (the first m rows of ``work``):
+    ``P_dd <- W F_d^T``, ``P_ds <- W_s``, ``P_ss`` unchanged, so the static rows are never multiplied. The
+    caller adds the process noise."""
     n = P.shape[0]
-    m = dynamic_rows(F, True)
+    m = counts.shape[0]
     for i in range(m):
         for j in range(n):
             work[i, j] = 0.0
-        for k in range(n):
-            f_ik = F[i, k]
+        for c in range(counts[i]):
+            f_ik = values[i, c]
+            k = cols[i, c]
             for j in range(n):
                 work[i, j] += f_ik * P[k, j]
     for i in range(m):
         for j in range(i, m):
             s = 0.0
-            for k in range(n):
-                s += work[i, k] * F[j, k]
+            for c in range(counts[j]):
+                s += work[i, cols[j, c]] * values[j, c]
             P[i, j] = s
             P[j, i] = s
         for j in range(m, n):
             P[i, j] = work[i, j]
             P[j, i] = work[i, j]
+
+
+@njit(cache=True)
+def propagate_covariance(P, F, Qd, work):
+    """``P <- F P F^T + Qd`` for a dense ``F`` whose rows after the states with dynamics are identity rows
+    (:func:`dynamic_rows`) and a symmetric ``Qd``; ``P, F, Qd`` (n, n); ``work`` (n, n) scratch. Exactly
+    symmetric; :func:`propagate_sparse` does the product."""
+    n = P.shape[0]
+    m = dynamic_rows(F, True)
+    values = np.empty((m, n))
+    cols = np.empty((m, n), dtype=np.int64)
+    counts = np.empty(m, dtype=np.int64)
+    sparse_rows(F, np.arange(n), values, cols, counts)
+    propagate_sparse(P, values, cols, counts, work)
     for i in range(n):
         for j in range(i, n):
             v = P[i, j] + Qd[i, j]

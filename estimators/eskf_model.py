@@ -339,68 +339,16 @@ def process_noise(F, gyro_psd, accel_psd, dt_s, Q_dyn):
 
 
 @njit(cache=True)
-def sparse_dynamic_rows(F, sel, values, cols, counts):
-    """The dynamic rows of ``F`` (NE, NE) over the active error states ``sel`` as sparse rows for
-    :func:`propagate_covariance`: row ``i`` has ``counts[i]`` non-zeros ``values[i, c]`` in the active columns
-    ``cols[i, c]`` (increasing); ``values``, ``cols`` (N_DYNAMIC, n), ``counts`` (N_DYNAMIC,) are outputs.
-
-    About 40 % of the entries are non-zero (no wind, magnetometer or baro columns; theta rows only see theta and
-    b_g); listing them once keeps the data-dependent branch out of the products."""
-    for i in range(N_DYNAMIC):
-        count = 0
-        for a in range(sel.shape[0]):
-            f = F[i, sel[a]]
-            values[i, count] = f
-            cols[i, count] = a
-            count += 1 if f != 0.0 else 0  # branch-free compaction: a zero is overwritten by the next entry
-        counts[i] = count
-
-
-@njit(cache=True)
-def propagate_covariance(P, values, cols, counts, Q_dyn, walk_psd, dt_s, work):
-    """``P <- F P F^T + Q`` for the error-state transition, in place, exactly symmetric.
-
-    ``F`` is the identity except its first ``N_DYNAMIC`` rows ``F_d`` (p, v, theta lead the active states; the
-    biases, wind and offsets are random walks), given as sparse rows (:func:`sparse_dynamic_rows`); ``Q`` is
-    ``Q_dyn`` on the dynamic block plus ``diag(K^2) dt``. With ``W = F_d P``: ``P_dd <- W F_d^T + Q_dyn``,
-    ``P_ds <- W_s`` and ``P_ss <- P_ss + diag(K^2 dt)``, so the static rows are never multiplied.
-
-    Parameters
-    ----------
-    P : ndarray (n, n)
-        Error covariance over the active error states.
-    values, cols, counts : ndarrays (N_DYNAMIC, n), (N_DYNAMIC, n), (N_DYNAMIC,)
-        The dynamic rows of F over the active error states (:func:`sparse_dynamic_rows`).
-    Q_dyn : ndarray (N_DYNAMIC, N_DYNAMIC)
-        Input noise (:func:`process_noise`).
-    walk_psd : ndarray (n,)
-        Squared random-walk densities K^2 of the active error states [unit^2/s].
-    dt_s : float
-        Interval [s].
-    work : ndarray (n, n)
-        Scratch (its first N_DYNAMIC rows hold ``W``).
-    """
-    n = P.shape[0]
-    W = work
-    for i in range(N_DYNAMIC):
-        for j in range(n):
-            W[i, j] = 0.0
-        for c in range(counts[i]):
-            f_ik = values[i, c]
-            k = cols[i, c]
-            for j in range(n):
-                W[i, j] += f_ik * P[k, j]
+def add_process_noise(P, Q_dyn, walk_psd, dt_s):
+    """``P += Q`` after :func:`estimators.ekf_core.propagate_sparse`: ``Q_dyn`` (N_DYNAMIC, N_DYNAMIC, symmetric,
+    :func:`process_noise`) on the dynamic block plus ``diag(K^2) dt`` (``walk_psd`` (n,): squared random-walk
+    densities of the active error states [unit^2/s]); exactly symmetric."""
     for i in range(N_DYNAMIC):
         for j in range(i, N_DYNAMIC):
-            s = Q_dyn[i, j]
-            for c in range(counts[j]):
-                s += W[i, cols[j, c]] * values[j, c]
-            P[i, j] = s
-            P[j, i] = s
-        for j in range(N_DYNAMIC, n):
-            P[i, j] = W[i, j]
-            P[j, i] = W[i, j]
-    for i in range(n):
+            P[i, j] += Q_dyn[i, j]
+            if j != i:
+                P[j, i] += Q_dyn[i, j]
+    for i in range(P.shape[0]):
         P[i, i] += walk_psd[i] * dt_s
 
 

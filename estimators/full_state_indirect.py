@@ -214,12 +214,13 @@ def measurement(x, kind, comp, values, field, lever_b, gyro, H):
 def _flush_covariance(P, x_cov, acc, imu_psd, walk_psd, sel, min_var, max_var, mean_input, F_full, F_work, F_values,
                       F_cols, F_counts, Q_dyn, work, counters):
     """Propagate P over the accumulated interval ``acc[0]`` with the mean inputs ``acc[1:7] / acc[0]``, from the
-    nominal ``x_cov`` at its start (:func:`estimators.eskf_model.propagate_covariance`); variance limits every
+    nominal ``x_cov`` at its start (:func:`estimators.ekf_core.propagate_sparse`, then
+    :func:`estimators.eskf_model.add_process_noise`); variance limits every
     time, the positive-definiteness repair every ``PD_CHECK_EVERY`` propagations (as the direct filter).
     ``imu_psd`` (2, 3): squared gyro and accelerometer noise densities; ``walk_psd`` (n,): squared random-walk
     densities of the active states; ``F_full`` the (NE, NE) transition, kept at the identity off its blocks;
     scratch: ``mean_input`` (2, 3), ``F_work`` (:func:`estimators.eskf_model.transition_work`), the sparse dynamic
-    rows ``F_values``, ``F_cols``, ``F_counts`` (:func:`estimators.eskf_model.sparse_dynamic_rows`), ``Q_dyn``
+    rows ``F_values``, ``F_cols``, ``F_counts`` (:func:`estimators.ekf_core.sparse_rows`), ``Q_dyn``
     (N_DYNAMIC, N_DYNAMIC) and ``work`` (n, n)."""
     dt = acc[0]
     for i in range(3):
@@ -227,8 +228,9 @@ def _flush_covariance(P, x_cov, acc, imu_psd, walk_psd, sel, min_var, max_var, m
         mean_input[1, i] = acc[4 + i] / dt
     m.transition(x_cov, mean_input[0], mean_input[1], dt, F_full, F_work)
     m.process_noise(F_full, imu_psd[0], imu_psd[1], dt, Q_dyn)
-    m.sparse_dynamic_rows(F_full, sel, F_values, F_cols, F_counts)
-    m.propagate_covariance(P, F_values, F_cols, F_counts, Q_dyn, walk_psd, dt, work)
+    ekf_core.sparse_rows(F_full, sel, F_values, F_cols, F_counts)
+    ekf_core.propagate_sparse(P, F_values, F_cols, F_counts, work)
+    m.add_process_noise(P, Q_dyn, walk_psd, dt)
     counters[C_FLUSHES] += 1
     if ekf_core.scheduled_repair(P, min_var, max_var, work, EIG_FLOOR, counters[C_FLUSHES], PD_CHECK_EVERY):
         counters[C_REPAIRS] += 1

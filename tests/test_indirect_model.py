@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from estimators import ekf_core
 from estimators import eskf_model as m
 from ingest.frames import quat_to_matrix
 
@@ -205,12 +206,13 @@ def test_covariance_propagation_is_f_p_ft_plus_q(rng, drop):
     expected = Fs @ P @ Fs.T + Q[np.ix_(sel, sel)]
     values, cols = np.empty((m.N_DYNAMIC, len(sel))), np.empty((m.N_DYNAMIC, len(sel)), dtype=np.int64)
     counts = np.empty(m.N_DYNAMIC, dtype=np.int64)
-    m.sparse_dynamic_rows(F, sel, values, cols, counts)
+    ekf_core.sparse_rows(F, sel, values, cols, counts)
     for i in range(m.N_DYNAMIC):
         nonzero = np.flatnonzero(F[i, sel])
         np.testing.assert_array_equal(cols[i, :counts[i]], nonzero)
         np.testing.assert_array_equal(values[i, :counts[i]], F[i, sel[nonzero]])
-    m.propagate_covariance(P, values, cols, counts, Q_dyn, walk_psd[sel], dt, np.empty_like(P))
+    ekf_core.propagate_sparse(P, values, cols, counts, np.empty_like(P))
+    m.add_process_noise(P, Q_dyn, walk_psd[sel], dt)
     np.testing.assert_allclose(P, expected, rtol=1e-12, atol=1e-12)
     np.testing.assert_array_equal(P, P.T)
 
