@@ -463,51 +463,51 @@ def _accumulate(acc, dt, rates, f_b, va):
 
 
 @njit(cache=True, inline="always")
-def _flush_stage1(acc, x1_start, P1, prm, w):
+def _flush_stage1(acc, x1_start, P1, prm, A, G, F, Q, W, rates):
     """Stage-1 covariance over the accumulated interval: F from the interval-start state and the mean rates,
-    Q = G N_g^2 G^T dt + Qc dt (math note 2.2)."""
+    Q = G N_g^2 G^T dt + Qc dt (math note 2.2). The work arrays of the stage are passed one by one: passing the
+    work tuple costs a reference-count pair per member."""
     dt = acc[0]
     if dt <= 0.0:
         return
     for i in range(3):
-        w.u[i] = acc[1 + i] / dt
-    ekf_core.transition_matrix(stage1_A(x1_start, w.u, w.A), dt, w.F)
+        rates[i] = acc[1 + i] / dt
+    ekf_core.transition_matrix(stage1_A(x1_start, rates, A), dt, F)
     for i in range(2):
         for j in range(2):
-            w.Q[i, j] = prm.qc1[i, j] * dt
-    _add_input_noise(stage1_G(x1_start, w.G), prm.gyro_psd, dt, w.Q)
-    ekf_core.propagate_covariance(P1, w.F, w.Q, w.W)
+            Q[i, j] = prm.qc1[i, j] * dt
+    _add_input_noise(stage1_G(x1_start, G), prm.gyro_psd, dt, Q)
+    ekf_core.propagate_covariance(P1, F, Q, W)
     acc[:] = 0.0
 
 
 @njit(cache=True, inline="always")
-def _flush_stage3(acc, x3_start, attitude_start, P1, P2, P3, prm, w):
+def _flush_stage3(acc, x3_start, attitude_start, P1, P2, P3, prm, A, G, F, Q, W, u, input_var):
     """Stage-3 covariance over the accumulated interval, from the interval-start state and attitude
-    (phi, theta, psi_2) and the mean inputs."""
+    (phi, theta, psi_2) and the mean inputs (work arrays one by one, as in :func:`_flush_stage1`)."""
     dt = acc[0]
     if dt <= 0.0:
         return
     n3 = x3_start.shape[0]
     for i in range(n3):
         for j in range(n3):
-            w.Q[i, j] = prm.qc3[i, j] * dt
+            Q[i, j] = prm.qc3[i, j] * dt
     if prm.fixed_wing_nav:
-        u = w.u
         u[0], u[1], u[2] = acc[7] / dt, acc[2] / dt, acc[3] / dt
         u[3], u[4], u[5] = attitude_start[0], attitude_start[1], attitude_start[2]
-        stage3_fw_jacobians(x3_start, u, prm.gravity_m_s2, w.A, w.G)
-        ekf_core.transition_matrix(w.A, dt, w.F)
+        stage3_fw_jacobians(x3_start, u, prm.gravity_m_s2, A, G)
+        ekf_core.transition_matrix(A, dt, F)
         # airspeed and stage-2 heading errors as inputs: first-order Gauss-Markov errors with the correlation
         # time INPUT_CORRELATION_S have the low-frequency density 2 sigma^2 T (math note 3.3)
-        w.input_var[0], w.input_var[1] = prm.airspeed_var, P2[0, 0]
-        _add_input_noise(w.G, w.input_var, 2.0 * INPUT_CORRELATION_S * dt, w.Q)
+        input_var[0], input_var[1] = prm.airspeed_var, P2[0, 0]
+        _add_input_noise(G, input_var, 2.0 * INPUT_CORRELATION_S * dt, Q)
     else:
-        ekf_core.transition_matrix(prm.a3_multicopter, dt, w.F)
+        ekf_core.transition_matrix(prm.a3_multicopter, dt, F)
         # accelerometer density (rotation-invariant) plus the tilt error g * delta (math note 3.4)
         velocity_var = prm.accel_psd * dt + prm.gravity_m_s2 ** 2 * max(P1[0, 0], P1[1, 1]) * dt * dt
-        w.Q[2, 2] += velocity_var
-        w.Q[3, 3] += velocity_var
-    ekf_core.propagate_covariance(P3, w.F, w.Q, w.W)
+        Q[2, 2] += velocity_var
+        Q[3, 3] += velocity_var
+    ekf_core.propagate_covariance(P3, F, Q, W)
     acc[:] = 0.0
 
 
@@ -845,11 +845,12 @@ def run_kernel(imu_t, imu_gyro, imu_accel, ev_t, ev_kind, ev_imu, ev_val, ev_var
                 _accumulate(acc_meas, dt, rates, f_b, va_in)
                 _accumulate(acc1, dt, rates, f_b, va_in)
                 if acc1[0] >= prm.covariance_dt_s:
-                    _flush_stage1(acc1, x1_start, P1, prm, w1)
+                    _flush_stage1(acc1, x1_start, P1, prm, w1.A, w1.G, w1.F, w1.Q, w1.W, w1.u)
                 if stage3_on:
                     _accumulate(acc3, dt, rates, f_b, va_in)
                     if acc3[0] >= prm.covariance_dt_s:
-                        _flush_stage3(acc3, x3_start, attitude_start, P1, P2, P3, prm, w3)
+                        _flush_stage3(acc3, x3_start, attitude_start, P1, P2, P3, prm,
+                                      w3.A, w3.G, w3.F, w3.Q, w3.W, w3.u, w3.input_var)
                 t = t_next
             if not at_event:
                 break
@@ -889,7 +890,8 @@ def run_kernel(imu_t, imu_gyro, imu_accel, ev_t, ev_kind, ev_imu, ev_val, ev_var
                 gps_pos_t = t
                 gps_pos[:] = values[:2]
                 gps_pos_var[:] = variances[:2]
-                _flush_stage3(acc3, x3_start, attitude_start, P1, P2, P3, prm, w3)
+                _flush_stage3(acc3, x3_start, attitude_start, P1, P2, P3, prm,
+                              w3.A, w3.G, w3.F, w3.Q, w3.W, w3.u, w3.input_var)
                 reset, counted = False, False
                 if stage3_on:
                     reset, counted = ekf_core.gps_reset_due(gps_mon, True, t, prm.gps_reset_after_s,
@@ -947,7 +949,8 @@ def run_kernel(imu_t, imu_gyro, imu_accel, ev_t, ev_kind, ev_imu, ev_val, ev_var
                         stage3_on = True
                         ekf_core.gps_acquired(gps_mon, t)
                 else:
-                    _flush_stage3(acc3, x3_start, attitude_start, P1, P2, P3, prm, w3)
+                    _flush_stage3(acc3, x3_start, attitude_start, P1, P2, P3, prm,
+                                  w3.A, w3.G, w3.F, w3.Q, w3.W, w3.u, w3.input_var)
                     reset, counted = ekf_core.gps_reset_due(gps_mon, False, t, prm.gps_reset_after_s,
                                                             prm.gps_outage_reset_s)
                     if reset:
@@ -963,7 +966,7 @@ def run_kernel(imu_t, imu_gyro, imu_accel, ev_t, ev_kind, ev_imu, ev_val, ev_var
             if abs(x1[1]) > PITCH_GUARD_RAD:
                 counters[C_PITCH_GUARD] += 1
             else:
-                _flush_stage1(acc1, x1_start, P1, prm, w1)
+                _flush_stage1(acc1, x1_start, P1, prm, w1.A, w1.G, w1.F, w1.Q, w1.W, w1.u)
                 use_gps_acc = prm.gps_acceleration and t - gps_vel_t < STALE_AFTER_S
                 accel_n = gps_acc if use_gps_acc else mw.no_accel
                 mean = mw.mean
