@@ -68,7 +68,10 @@ def _ecef_to_geodetic(x_m, y_m, z_m):
     """Sine and cosine of the WGS-84 geodetic latitude and the ellipsoidal height [m] of ECEF points.
 
     Bowring's method, iterated twice (exact to machine precision for points near the earth's surface); no
-    inverse trigonometric function, which is what makes it fast on long arrays.
+    inverse trigonometric function, which is what makes it fast on long arrays. ``pymap3d.ecef2geodetic`` gives
+    the same latitude and height (within 4e-14 deg and 4e-9 m) but took 0.073 s against 0.008 s for 180,000
+    points here, and :func:`ned_to_geodetic` calls this five times for every output table (an hour of one
+    estimator at 50 Hz), so it would cost about a second of a three-estimator replay.
     """
     a_m, b_m = _WGS84.semimajor_axis, _WGS84.semiminor_axis
     e2 = 1.0 - (b_m / a_m) ** 2  # first eccentricity squared
