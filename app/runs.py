@@ -102,8 +102,9 @@ def replay(log: FlightLog, settings: RunSettings, calibration: Calibration | Non
 
 
 def _stacked(frames: list[pd.DataFrame], order: pd.CategoricalDtype) -> pd.DataFrame:
-    frame = pd.concat([f.assign(estimator=f["estimator"].astype(str)) for f in frames], ignore_index=True)
-    return frame.assign(estimator=frame["estimator"].astype(order))
+    # one categorical dtype for all parts (codes remapped, no round trip through strings), so concat keeps it
+    return pd.concat([f.assign(estimator=f["estimator"].cat.set_categories(order.categories)) for f in frames],
+                     ignore_index=True)
 
 
 def replay_and_store(workspace: Workspace, sha256: str, log: FlightLog, settings: RunSettings,
