@@ -520,14 +520,23 @@ def scalar_innovation(kind, comp, values, variances, h):
 
 @njit(cache=True)
 def _flush_covariance(P, x_cov, acc, g, params, layout, rw_var, min_var, max_var, R, S, W, A, F, Qc, work,
-                      counters):
-    """Propagate P over the accumulated interval ``acc[0]`` with the mean inputs ``acc[1:7] / acc[0]``."""
+                      mean_gyro, columns, F_values, F_cols, F_counts, counters):
+    """Propagate P over the accumulated interval ``acc[0]`` with the mean inputs ``acc[1:7] / acc[0]``.
+
+    Scratch: ``mean_gyro`` (3,); ``columns`` = ``arange(n)`` and the sparse dynamic rows of F ``F_values``,
+    ``F_cols`` (N_DYNAMIC, n), ``F_counts`` (N_DYNAMIC,) (:func:`estimators.ekf_core.sparse_rows`)."""
+    n = P.shape[0]
     dt = acc[0]
-    mean_gyro = acc[1:4] / dt
+    for i in range(3):
+        mean_gyro[i] = acc[1 + i] / dt
     jacobian(x_cov, mean_gyro, g, layout, R, S, W, A)
     ekf_core.transition_matrix(A, dt, F)
     process_noise(x_cov, params[P_NG2], params[P_NA2], rw_var, dt, R, S, W, Qc)
-    ekf_core.propagate_covariance(P, F, Qc, work)
+    ekf_core.sparse_rows(F, columns, F_values, F_cols, F_counts)
+    ekf_core.propagate_sparse(P, F_values, F_cols, F_counts, work)
+    for i in range(n):  # + Qd (symmetric: the diagonal and the velocity/attitude block)
+        for j in range(n):
+            P[i, j] += Qc[i, j]
     counters[C_FLUSHES] += 1
     if ekf_core.scheduled_repair(P, min_var, max_var, work, EIG_FLOOR, counters[C_FLUSHES], PD_CHECK_EVERY):
         counters[C_REPAIRS] += 1
@@ -586,6 +595,12 @@ def run_kernel(imu_t, imu_gyro, imu_accel, ev_t, ev_kind, ev_imu, ev_val, ev_var
     h3 = np.empty(3)
     out_row = np.empty(out_f.shape[1])
     acc = np.zeros(7)  # dt, sum gyro dt, sum accel dt
+    mean_gyro = np.empty(3)
+    columns = np.arange(n)
+    F_values = np.empty((N_DYNAMIC, n))
+    F_cols = np.empty((N_DYNAMIC, n), dtype=np.int64)
+    F_counts = np.empty(N_DYNAMIC, dtype=np.int64)
+    no_values = np.zeros(events.N_EVENT_VALUES)  # the event values the output's velocity model does not read
     g = params[P_G]
     cov_dt = params[P_COV_DT]
     field = params[P_FIELD:P_FIELD + 3].copy()
@@ -614,7 +629,7 @@ def run_kernel(imu_t, imu_gyro, imu_accel, ev_t, ev_kind, ev_imu, ev_val, ev_var
                 t = t_next
                 if acc[0] >= cov_dt * (1.0 - 1e-9):
                     _flush_covariance(P, x_cov, acc, g, params, layout, rw_var, min_var, max_var, R, S, W, A, F,
-                                      Qc, work, counters)
+                                      Qc, work, mean_gyro, columns, F_values, F_cols, F_counts, counters)
                     if not ekf_core.is_healthy(x, P):
                         ekf_core.reset_filter(x, P, x_safe, P0)
                         counters[C_RESETS] += 1
@@ -634,7 +649,7 @@ def run_kernel(imu_t, imu_gyro, imu_accel, ev_t, ev_kind, ev_imu, ev_val, ev_var
                     counters[C_RESETS] += 1
                 for i in range(n):
                     x_safe[i] = x[i]
-                _output_row(x, P, layout, field, R, S, W, H, t, out_row)
+                _output_row(x, P, layout, field, no_values, R, S, W, H, t, out_row)
                 ekf_core.record_output(out_f, n_out, out_row)
                 if n_out < out_x.shape[0]:
                     for i in range(n):
@@ -711,7 +726,7 @@ def run_kernel(imu_t, imu_gyro, imu_accel, ev_t, ev_kind, ev_imu, ev_val, ev_var
             j += 1
     if acc[0] > 0.0:
         _flush_covariance(P, x_cov, acc, g, params, layout, rw_var, min_var, max_var, R, S, W, A, F, Qc, work,
-                          counters)
+                          mean_gyro, columns, F_values, F_cols, F_counts, counters)
     counters[C_OUTPUTS] = n_out
     return x, P
 
@@ -780,23 +795,21 @@ def reset_to_gps(x, P, kind, values, variances, layout, move_wind, R, S, W, H, T
 
 
 @njit(cache=True)
-def _output_row(x, P, layout, field, R, S, W, H, t, out):
-    """Fill one output row (:data:`OUT_COLUMNS`)."""
-    n = x.shape[0]
+def _output_row(x, P, layout, field, no_values, R, S, W, H, t, out):
+    """Fill one output row (:data:`OUT_COLUMNS`); ``no_values`` (N_EVENT_VALUES,) stands for the event values
+    that the NED-velocity model (GPS_VEL components 0..2) does not read."""
     out[0] = t
     for i in range(3):
         out[1 + i] = x[6 + i]
         out[4 + i] = x[i]
         out[12 + i] = math.sqrt(max(P[6 + i, 6 + i], 0.0))
         out[15 + i] = math.sqrt(max(P[i, i], 0.0))
-    dummy = np.zeros(6)
     for c in range(3):
-        out[7 + c] = measurement(x, GPS_VEL, c, dummy, field, layout, R, S, W, H)
+        out[7 + c] = measurement(x, GPS_VEL, c, no_values, field, layout, R, S, W, H)
         var = 0.0
-        for i in range(n):
-            if H[i] != 0.0:
-                for jj in range(n):
-                    var += H[i] * P[i, jj] * H[jj]
+        for i in range(I_V, I_TH + 3):  # the NED velocity depends on V and Theta only
+            for jj in range(I_V, I_TH + 3):
+                var += H[i] * P[i, jj] * H[jj]
         out[18 + c] = math.sqrt(max(var, 0.0))
     iw = layout[L_W]
     for c in range(2):
