@@ -17,7 +17,10 @@ Three small EKFs in series, each feeding the next its estimate as an input (mode
    and/or the photocell sun vector (tangent-plane form of math note 8.5), whichever the replay inputs carry
    (``heading="mag"|"sun"|"mag+sun"`` of :func:`estimators.events.build_replay_inputs`). Cascade consistency: R is
    inflated by the stage-1 covariance, ``R_eff = R + J P1 J^T`` with ``J = dh/d(phi, theta)``; the correlated
-   vector is gated as a whole (chi-square) and whitened (Cholesky) before its scalar updates.
+   vector is gated as a whole (chi-square) and whitened (Cholesky) before its scalar updates. Heading
+   re-acquisition (the GPS rule of math note 2.3 applied to heading): when every heading vector has been gated
+   out for ``timing.gps_reset_after_s``, the heading restarts at the one the measured vector implies at the
+   stage-1 roll and pitch, with the alignment's variance (counted and reported).
 3. **Navigation** at the GPS epochs (Algorithm 1, T31). Fixed-wing with airspeed: ``x3 = (p_n, p_e, V_g, chi,
    w_n, w_e, dev_a, dev_b, dev_c)`` (eq 26-33 corrected) driven by ``u = (V_a, q, r, phi, theta, psi_2)``, where
    the heading ``psi = psi_2 - (dev_a + dev_b sin psi_2 + dev_c cos psi_2)`` is the stage-2 heading corrected by a
@@ -105,8 +108,11 @@ OUT_COLUMNS = ("time_s", "roll", "pitch", "yaw", "pn", "pe", "pd", "vn", "ve", "
  O_PN_STD, O_PE_STD, O_VN_STD, O_VE_STD, O_WN_STD, O_WE_STD) = range(len(OUT_COLUMNS))
 
 # kernel counters: the shared slots of ekf_core (C_DIAG .. C_OUTPUTS), then this filter's
+#: Horizontal part of a unit vector below which it gives no heading (:func:`measured_heading`).
+MIN_HORIZONTAL = 0.2
 C_PITCH_GUARD = N_SHARED_COUNTERS
-N_COUNTERS = N_SHARED_COUNTERS + 1
+C_HEADING_RESETS = N_SHARED_COUNTERS + 1  # stage-2 heading re-acquisitions
+N_COUNTERS = N_SHARED_COUNTERS + 2
 
 #: Attitude updates are skipped beyond this pitch (Euler singularity, math note 7.6) [rad].
 PITCH_GUARD_RAD = math.radians(85.0)
@@ -555,7 +561,7 @@ def _whitened_update(t, sensor, x, P, m, nu, H, R, gate_d2, w, mw, diag_f, diag_
     whitened in place. Gate: the vector is rejected when ``nu^T S^-1 nu > gate_d2`` with ``S = H P H^T + R`` (a
     chi-square threshold for ``m`` components). Fusion: with ``R = L L^T``, ``nu' = L^-1 nu``, ``H' = L^-1 H`` and
     ``R' = I``, one scalar update per component; later components are corrected linearly, so the result equals the
-    batch update.
+    batch update. Returns whether the vector passed the gate.
     """
     L, S, y = mw.L, mw.S, mw.y
     _cholesky_lower(R, m, L)
@@ -574,7 +580,7 @@ def _whitened_update(t, sensor, x, P, m, nu, H, R, gate_d2, w, mw, diag_f, diag_
     if not d2 <= gate_d2:
         for i in range(m):
             _record(diag_f, diag_i, counters, t, sensor, i, nu[i, 0], S[i, i], nu[i, 0] ** 2 / S[i, i], False)
-        return
+        return False
     for i in range(m):
         accepted, s_var, nis = ekf_core.scalar_update(P, H[i], nu[i, 0], 1.0, math.inf, w.dx, w.ph)
         _record(diag_f, diag_i, counters, t, sensor, i, nu[i, 0], s_var, nis, accepted)
@@ -583,16 +589,20 @@ def _whitened_update(t, sensor, x, P, m, nu, H, R, gate_d2, w, mw, diag_f, diag_
             for j in range(i + 1, m):
                 for c in range(x.shape[0]):
                     nu[j, 0] -= H[j, c] * w.dx[c]
+    return True
 
 
 @njit(cache=True, inline="always")
 def _stage2_update(t, kind, values, variances, prm, x1, P1, x2, P2, w, mw, diag_f, diag_i, counters):
-    """Heading update from a body-frame unit vector: magnetometer (3 components) or sun (2 tangent components)."""
+    """Heading update from a body-frame unit vector: magnetometer (3 components) or sun (2 tangent components).
+
+    Returns ``(gated, heading)``: whether the vector passed the gate, and the heading [rad] the measured vector
+    alone implies at the stage-1 roll and pitch (:func:`measured_heading`; for the re-acquisition rule)."""
     z = mw.z
     if kind == MAG:
         norm = math.sqrt(values[0] ** 2 + values[1] ** 2 + values[2] ** 2)
         if not norm > 0.0:
-            return
+            return True, math.nan
         for i in range(3):
             z[i] = values[i] / norm
         ref = prm.mag_field_ned
@@ -627,8 +637,24 @@ def _stage2_update(t, kind, values, variances, prm, x1, P1, x2, P2, w, mw, diag_
         R[:m, :m] = 0.0
     for i in range(m):
         R[i, i] += variances[0]
-    _whitened_update(t, kind, x2, P2, m, nu, H, R, gate_d2, w, mw, diag_f, diag_i, counters)
+    heading = measured_heading(z, ref, x1[0], x1[1])
+    gated = _whitened_update(t, kind, x2, P2, m, nu, H, R, gate_d2, w, mw, diag_f, diag_i, counters)
     x2[0] = ekf_core.wrap_pi(x2[0])
+    return gated, heading
+
+
+@njit(cache=True)
+def measured_heading(z_body, ref_ned, phi, theta):
+    """Heading [rad] at which the body-frame unit vector ``z_body`` points along the reference ``ref_ned`` in
+    azimuth, at roll ``phi`` and pitch ``theta`` [rad]: with the levelled vector ``l = R_y(theta) R_x(phi) z`` and
+    ``R_nb = R_z(psi) R_y R_x``, the reference azimuth is ``psi + azimuth(l)``. NaN when either has no horizontal
+    component to speak of."""
+    cph, sph, cth, sth = math.cos(phi), math.sin(phi), math.cos(theta), math.sin(theta)
+    level_n = cth * z_body[0] + sth * (sph * z_body[1] + cph * z_body[2])
+    level_e = cph * z_body[1] - sph * z_body[2]
+    if math.hypot(level_n, level_e) < MIN_HORIZONTAL or math.hypot(ref_ned[0], ref_ned[1]) < MIN_HORIZONTAL:
+        return math.nan
+    return ekf_core.wrap_pi(math.atan2(ref_ned[1], ref_ned[0]) - math.atan2(level_e, level_n))
 
 
 @njit(cache=True)
@@ -822,6 +848,8 @@ def run_kernel(imu_t, imu_gyro, imu_accel, ev_t, ev_kind, ev_imu, ev_val, ev_var
     gps_pos, gps_pos_var = np.zeros(2), np.zeros(2)
     gps_pos_t = -math.inf
     gps_mon = ekf_core.gps_monitor()  # re-acquisition rule (math note 2.3), armed when stage 3 starts
+    heading_rejected_since = math.inf  # start of the current streak of gated-out heading vectors
+    P2_reset = P2[0, 0]  # the alignment's heading variance, given to a re-acquired heading
     n_out = 0
     t = imu_t[0]
     ie = 0
@@ -884,7 +912,19 @@ def run_kernel(imu_t, imu_gyro, imu_accel, ev_t, ev_kind, ev_imu, ev_val, ev_var
                 if abs(x1[1]) > PITCH_GUARD_RAD:
                     counters[C_PITCH_GUARD] += 1
                 else:
-                    _stage2_update(t, kind, values, variances, prm, x1, P1, x2, P2, w2, mw, diag_f, diag_i, counters)
+                    gated, heading = _stage2_update(t, kind, values, variances, prm, x1, P1, x2, P2, w2, mw, diag_f,
+                                                    diag_i, counters)
+                    if gated:
+                        heading_rejected_since = math.inf
+                    elif heading_rejected_since == math.inf:
+                        heading_rejected_since = t
+                    elif t - heading_rejected_since >= prm.gps_reset_after_s and math.isfinite(heading):
+                        # heading re-acquisition, the rule of the GPS (math note 2.3): every vector rejected for
+                        # T_rej means the heading, not the sensor, is wrong; restart from the measured heading
+                        x2[0] = heading
+                        P2[0, 0] = P2_reset
+                        heading_rejected_since = math.inf
+                        counters[C_HEADING_RESETS] += 1
                     _repair(P2, prm.max_var2, w2, counters)
             elif kind == GPS_POS:
                 gps_pos_t = t
@@ -1125,6 +1165,9 @@ def run(flight_log: FlightLog, inputs: ReplayInputs, config: EstimatorConfig, *,
     warnings = []
     if counters[C_PITCH_GUARD]:
         warnings.append(f"{counters[C_PITCH_GUARD]} attitude updates skipped at |pitch| > 85 deg")
+    if counters[C_HEADING_RESETS]:
+        warnings.append(f"heading re-acquired {counters[C_HEADING_RESETS]} times (every heading vector rejected "
+                        f"for {config.timing.gps_reset_after_s:g} s)")
     navigating = np.isfinite(o[:, O_PN])
     details = {
         "modes": setup.modes,
@@ -1132,6 +1175,7 @@ def run(flight_log: FlightLog, inputs: ReplayInputs, config: EstimatorConfig, *,
         "final_state": {"stage1": x1.tolist(), "stage2": x2.tolist(), "stage3": x3.tolist()},
         "gyro_bias_rad_s": setup.params.gyro_bias_rad_s.tolist(),
         "stage3_start_s": float(o[navigating, O_TIME][0]) if navigating.any() else None,
+        "heading_resets": int(counters[C_HEADING_RESETS]),
         "accel_update_rate_hz": options.accel_update_rate_hz,
         "accel_tau": options.accel_tau,
         **replay_details(inputs),

@@ -164,7 +164,12 @@ def test_recovers_from_a_large_yaw_and_velocity_error(paper_bad_start, name):
     bar = GPS_FLOOR_FACTOR * sidecar["sensor_errors"]["gps"]["position_error_rms_horizontal_m"]
     print(f"{name}: {run.report.gps_resets} GPS resets, position RMS after 60 s {rms['position_m']:.2f} m "
           f"(bar {bar:.2f} m), yaw RMS {rms['yaw_deg']:.1f} deg")
-    assert run.report.gps_resets >= 1
+    if name == "three_stage":
+        # its heading is a stage of its own: every magnetometer vector is gated out during the still window, the
+        # heading is re-acquired before stage 3 starts (it used to stay 20 deg off, yaw RMS 20.8 deg)
+        assert run.report.details["heading_resets"] >= 1 and rms["yaw_deg"] < 2.0
+    else:
+        assert run.report.gps_resets >= 1
     assert rms["position_m"] < bar
 
 

@@ -541,3 +541,21 @@ def test_sun_vector_heading_on_simulated_flight(heading):
     assert len(sun) > 1000 and sun["accepted"].mean() > 0.95
     rms = rms_errors(result.states, log, after_s=60.0).loc["three_stage"]
     assert rms["yaw_deg"] < 1.5 and rms["wind_m_s"] < 0.3, rms
+
+
+def test_measured_heading_inverts_the_body_vector_model(rng):
+    """Heading re-acquisition: a reference rotated into body axes at (phi, theta, psi) gives back psi at that roll
+    and pitch (magnetometer-like and sun-like references); no heading from a vertical reference."""
+    for _ in range(200):
+        phi, theta = rng.uniform(-1.2, 1.2), rng.uniform(-1.2, 1.2)
+        psi = rng.uniform(-np.pi, np.pi)
+        ref = rng.normal(size=3)
+        ref /= np.linalg.norm(ref)
+        if np.hypot(ref[0], ref[1]) < 0.3:
+            continue
+        z_body = euler_to_matrix(phi, theta, psi).T @ ref
+        if np.hypot(*(euler_to_matrix(phi, theta, 0.0) @ z_body)[:2]) < 0.3:
+            continue
+        heading = three_stage.measured_heading(z_body, ref, phi, theta)
+        assert abs(np.angle(np.exp(1j * (heading - psi)))) < 1e-9
+    assert np.isnan(three_stage.measured_heading(np.array([0.0, 0.0, 1.0]), np.array([0.0, 0.0, 1.0]), 0.0, 0.0))
