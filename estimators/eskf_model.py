@@ -269,26 +269,22 @@ def transition(x, gyro_rad_s, accel_m_s2, dt_s, F, work):
         a_ba0 = -(R_mid[i, 0] - R_mid[i, 2] * kzx)
         a_ba1 = -(R_mid[i, 1] - R_mid[i, 2] * kzy)
         a_ba2 = -R_mid[i, 2]
+        a_kz0 = -R_mid[i, 2] * fx
+        a_kz1 = -R_mid[i, 2] * fy
         F[E_P + i, E_V + i] = dt_s
-        F[E_P + i, E_TH] = a_th0 * half_dt2
-        F[E_P + i, E_TH + 1] = a_th1 * half_dt2
-        F[E_P + i, E_TH + 2] = a_th2 * half_dt2
-        F[E_V + i, E_TH] = a_th0 * dt_s
-        F[E_V + i, E_TH + 1] = a_th1 * dt_s
-        F[E_V + i, E_TH + 2] = a_th2 * dt_s
-        F[E_P + i, E_BA] = a_ba0 * half_dt2
-        F[E_P + i, E_BA + 1] = a_ba1 * half_dt2
-        F[E_P + i, E_BA + 2] = a_ba2 * half_dt2
-        F[E_V + i, E_BA] = a_ba0 * dt_s
-        F[E_V + i, E_BA + 1] = a_ba1 * dt_s
-        F[E_V + i, E_BA + 2] = a_ba2 * dt_s
-        F[E_P + i, E_KZ] = -R_mid[i, 2] * fx * half_dt2
-        F[E_P + i, E_KZ + 1] = -R_mid[i, 2] * fy * half_dt2
-        F[E_V + i, E_KZ] = -R_mid[i, 2] * fx * dt_s
-        F[E_V + i, E_KZ + 1] = -R_mid[i, 2] * fy * dt_s
+        # the velocity row of each block is its rate times dt, the position row integrates it once more (dt^2/2)
+        for row, scale in ((E_P + i, half_dt2), (E_V + i, dt_s)):
+            F[row, E_TH] = a_th0 * scale
+            F[row, E_TH + 1] = a_th1 * scale
+            F[row, E_TH + 2] = a_th2 * scale
+            F[row, E_BA] = a_ba0 * scale
+            F[row, E_BA + 1] = a_ba1 * scale
+            F[row, E_BA + 2] = a_ba2 * scale
+            F[row, E_KZ] = a_kz0 * scale
+            F[row, E_KZ + 1] = a_kz1 * scale
+            for j in range(3):
+                F[row, E_BG + j] = a_bg[i, j] * half * scale
         for j in range(3):
-            F[E_P + i, E_BG + j] = a_bg[i, j] * half * half_dt2
-            F[E_V + i, E_BG + j] = a_bg[i, j] * half * dt_s
             F[E_TH + i, E_TH + j] = R_full[j, i]
             F[E_TH + i, E_BG + j] = -J_full[i, j] * dt_s
 
