@@ -3,9 +3,9 @@ determinism, the bundled sample logs and the ``simulate`` command."""
 
 from __future__ import annotations
 
-import hashlib
 import io
 import json
+import re
 from pathlib import Path
 
 import numpy as np
@@ -157,17 +157,43 @@ def test_same_seed_same_bytes_other_seed_other_bytes(short_run, tmp_path):
         assert other[key].read_bytes() != paths[key].read_bytes(), key
 
 
-def _sha256(path) -> str:
-    return hashlib.sha256(path.read_bytes()).hexdigest()
+def _assert_same_ulog(regenerated: Path, bundled: Path) -> None:
+    """Same topics, fields and timestamps; values equal to a few ulp (the last bits of the floats differ between
+    numpy/libm builds, so bytes are not compared)."""
+    a, b = ULog(str(regenerated)), ULog(str(bundled))
+    assert sorted((d.name, d.multi_id) for d in a.data_list) == sorted((d.name, d.multi_id) for d in b.data_list)
+    by_key = {(d.name, d.multi_id): d for d in b.data_list}
+    for data in a.data_list:
+        other = by_key[(data.name, data.multi_id)]
+        assert sorted(data.data) == sorted(other.data), data.name
+        for field, values in data.data.items():
+            expected = other.data[field]
+            if values.dtype.kind == "f":
+                np.testing.assert_allclose(values, expected, rtol=1e-9, atol=1e-12, err_msg=f"{data.name}.{field}")
+            else:
+                np.testing.assert_array_equal(values, expected, err_msg=f"{data.name}.{field}")
+    assert a.initial_parameters == b.initial_parameters
+
+
+def _assert_same_text_numbers(regenerated: Path, bundled: Path) -> None:
+    """Same text but for the last digits of floating-point numbers."""
+    number = re.compile(r"-?\d+\.\d+(?:[eE][-+]?\d+)?")
+    a, b = regenerated.read_text(), bundled.read_text()
+    assert number.sub("#", a) == number.sub("#", b), f"{bundled.name}: text differs beyond its numbers"
+    np.testing.assert_allclose([float(v) for v in number.findall(a)], [float(v) for v in number.findall(b)],
+                               rtol=1e-9, atol=1e-12, err_msg=bundled.name)
 
 
 @pytest.mark.parametrize("scenario", SAMPLE_SCENARIOS)
-def test_simulate_command_regenerates_the_sample_logs_bit_for_bit(scenario, tmp_path, capsys):
+def test_simulate_command_regenerates_the_sample_logs(scenario, tmp_path, capsys):
     assert main(["simulate", "--scenario", scenario, "-o", str(tmp_path)]) == 0
     assert scenario in capsys.readouterr().out
     for key, bundled in output_paths(SAMPLE_LOGS_DIR, scenario).items():
         regenerated = output_paths(tmp_path, scenario)[key]
-        assert _sha256(regenerated) == _sha256(bundled), f"{bundled.name} differs from its regeneration"
+        if key == "ulog":
+            _assert_same_ulog(regenerated, bundled)
+        else:
+            _assert_same_text_numbers(regenerated, bundled)
 
 
 def test_sample_logs_are_small_enough():
