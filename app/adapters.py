@@ -42,7 +42,7 @@ from calib.segments import (
 )
 from calib.tau import TauSelection, choose_tau, user_tau
 from estimators.environment import geodetic_to_ned
-from estimators.sun_prediction import sun_vector_table
+from estimators.sun.prediction import sun_vector_table
 from ingest import FlightLog
 
 #: Bytes per MB in Streamlit's ``server.maxUploadSize``.
@@ -318,5 +318,5 @@ def run_file(root: str, run_id: str, table: str, suffix: str) -> Callable[[], by
 @st.cache_data(max_entries=8, show_spinner="Solving the sun vector ...")
 def sun_table(root: str, sha256: str) -> pd.DataFrame:
     """Solved and predicted sun vector of every photocell sample
-    (:func:`estimators.sun_prediction.sun_vector_table`)."""
+    (:func:`estimators.sun.prediction.sun_vector_table`)."""
     return sun_vector_table(stored_log(root, sha256))

@@ -64,7 +64,7 @@ def gps_origin(log: FlightLog) -> tuple[float, float, float] | None:
 
 
 def quantities(states: pd.DataFrame, origin: tuple[float, float, float] | None) -> pd.DataFrame:
-    """The compared quantities of one source's states (columns of ``estimators.results.STATE_COLUMNS``).
+    """The compared quantities of one source's states (columns of ``estimators.core.results.STATE_COLUMNS``).
 
     Returns
     -------

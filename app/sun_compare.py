@@ -1,5 +1,5 @@
 """Display helpers of the Sun vector page: body-frame azimuth / elevation of a sun vector and the state of every
-cell over time (the solved and predicted vectors come from :func:`estimators.sun_prediction.sun_vector_table`).
+cell over time (the solved and predicted vectors come from :func:`estimators.sun.prediction.sun_vector_table`).
 Pure NumPy / pandas (no Streamlit), tested directly.
 
 Body-frame angles (FRD): azimuth = atan2(s_y, s_x) from the nose towards the right wing, elevation = asin(-s_z)
@@ -34,7 +34,7 @@ def cell_states(solution: pd.DataFrame, device: SunDevice) -> np.ndarray:
     Parameters
     ----------
     solution : pandas.DataFrame
-        :func:`estimators.sun_prediction.sun_vector_table` (or ``solve_sun_log``) output: ``cells_used``,
+        :func:`estimators.sun.prediction.sun_vector_table` (or ``solve_sun_log``) output: ``cells_used``,
         ``faulty_cells`` bitmasks, ``sun_x/y/z``.
     device : SunDevice
         Geometry (cell normals in the body frame).

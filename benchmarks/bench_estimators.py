@@ -31,11 +31,12 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from estimators import ekf_core, events
-from estimators import full_state_direct as fsd
 from estimators.api import ESTIMATORS, estimator_function, run_estimators
 from estimators.config import EstimatorConfig
+from estimators.core import full_state, linalg
+from estimators.direct import kernel as direct_kernel
 from estimators.evaluation import PAPER_TABLE_2, QUANTITIES, config_for_simulation, rms_errors
+from estimators.inputs import build, records
 from ingest.ulog_reader import load_flight_log
 from sim.px4_export import write_outputs
 from sim.scenarios import SCENARIOS
@@ -149,21 +150,21 @@ def filterpy_direct_us_per_sample(log, seconds: float, *, covariance_every_sampl
     from filterpy.kalman import ExtendedKalmanFilter
 
     config = EstimatorConfig()
-    inputs = events.build_replay_inputs(log, config)
+    inputs = build.build_replay_inputs(log, config)
     t0 = inputs.imu.time_s[0]
     keep_imu = inputs.imu.time_s <= t0 + seconds
-    imu = events.ImuSamples(**{**inputs.imu.__dict__, "time_s": inputs.imu.time_s[keep_imu],
+    imu = records.ImuSamples(**{**inputs.imu.__dict__, "time_s": inputs.imu.time_s[keep_imu],
                                "gyro_rad_s": inputs.imu.gyro_rad_s[keep_imu],
                                "accel_m_s2": inputs.imu.accel_m_s2[keep_imu]})
     ev = inputs.events
-    keep_ev = (ev.time_s <= imu.time_s[-1]) & (ev.kind != events.OUTPUT)
-    ev = events.MeasurementEvents(ev.time_s[keep_ev], ev.kind[keep_ev], ev.imu_index[keep_ev], ev.values[keep_ev],
+    keep_ev = (ev.time_s <= imu.time_s[-1]) & (ev.kind != records.OUTPUT)
+    ev = records.MeasurementEvents(ev.time_s[keep_ev], ev.kind[keep_ev], ev.imu_index[keep_ev], ev.values[keep_ev],
                                   ev.variances[keep_ev])
-    short = events.ReplayInputs(**{**inputs.__dict__, "imu": imu, "events": ev})
-    k = fsd.kernel_inputs(short, config)
+    short = records.ReplayInputs(**{**inputs.__dict__, "imu": imu, "events": ev})
+    k = direct_kernel.kernel_inputs(short, config)
     n = len(k.x0)
-    fsd.run(log, short, config)
-    ours = min(fsd.run(log, short, config).report.timings_s["kernel"] for _ in range(3)) / len(imu.time_s) * 1e6
+    direct_kernel.run(log, short, config)
+    ours = min(direct_kernel.run(log, short, config).report.timings_s["kernel"] for _ in range(3)) / len(imu.time_s) * 1e6
 
     ekf = ExtendedKalmanFilter(dim_x=n, dim_z=1)
     ekf.x = k.x0.reshape(n, 1).copy()
@@ -173,7 +174,7 @@ def filterpy_direct_us_per_sample(log, seconds: float, *, covariance_every_sampl
     k1, k2, k3, k4, xt = (np.empty(n) for _ in range(5))
     A, F, Qd, H = np.zeros((n, n)), np.empty((n, n)), np.zeros((n, n)), np.empty(n)
 
-    g, cov_dt, field = k.params[fsd.P_G], k.params[fsd.P_COV_DT], k.params[fsd.P_FIELD:fsd.P_FIELD + 3]
+    g, cov_dt, field = k.params[full_state.P_G], k.params[full_state.P_COV_DT], k.params[full_state.P_FIELD:full_state.P_FIELD + 3]
     acc_dt, acc_gyro, j = 0.0, np.zeros(3), 0
     start = time.perf_counter()
     for row in range(1, len(imu.time_s)):
@@ -182,23 +183,23 @@ def filterpy_direct_us_per_sample(log, seconds: float, *, covariance_every_sampl
         x = ekf.x.reshape(n)
         if acc_dt == 0.0:
             x_cov = x.copy()
-        fsd.propagate_state(x, gyro, accel, dt, g, k.layout, R, S, W, k1, k2, k3, k4, xt)
+        direct_kernel.propagate_state(x, gyro, accel, dt, g, k.layout, R, S, W, k1, k2, k3, k4, xt)
         ekf.x = x.reshape(n, 1)
         acc_dt += dt
         acc_gyro += gyro * dt
         if acc_dt >= cov_dt or covariance_every_sample:
-            fsd.jacobian(x_cov, acc_gyro / acc_dt, g, k.layout, R, S, W, A)
-            ekf_core.transition_matrix(A, acc_dt, F)
-            fsd.process_noise(x_cov, k.params[fsd.P_NG2], k.params[fsd.P_NA2], k.rw_var, acc_dt, R, S, W, Qd)
+            direct_kernel.jacobian(x_cov, acc_gyro / acc_dt, g, k.layout, R, S, W, A)
+            linalg.transition_matrix(A, acc_dt, F)
+            direct_kernel.process_noise(x_cov, k.params[full_state.P_NG2], k.params[full_state.P_NA2], k.rw_var, acc_dt, R, S, W, Qd)
             ekf.F, ekf.Q = F, Qd
             ekf.predict()
             acc_dt, acc_gyro = 0.0, np.zeros(3)
         while j < len(ev.time_s) and ev.imu_index[j] <= row:
             kind, values = ev.kind[j], ev.values[j]
-            c0, c1 = fsd.component_range(kind, values, False, 3.0)
+            c0, c1 = full_state.component_range(kind, values, False, 3.0)
             for c in range(c0, c1):  # (no sun events with the default magnetometer heading)
-                h = fsd.measurement(ekf.x.reshape(n), kind, c, values, field, k.layout, R, S, W, H)
-                z, r_var = fsd.measured_value(kind, c, values, ev.variances[j])
+                h = direct_kernel.measurement(ekf.x.reshape(n), kind, c, values, field, k.layout, R, S, W, H)
+                z, r_var = full_state.measured_value(kind, c, values, ev.variances[j])
                 ekf.update(np.array([[z]]), HJacobian=lambda _x, H=H: H.reshape(1, n),
                            Hx=lambda _x, h=h: np.array([[h]]), R=np.array([[r_var]]))
             j += 1

@@ -21,13 +21,14 @@ import time
 import numpy as np
 import pandas as pd
 
-from estimators import sun_vector as sv
+from estimators.sun import photocells
+from estimators.sun import solver as sun_solver
 from ingest.frames import euler_to_matrix
 from ingest.sun_device import SunDevice
 
 K_A, SKY_A, NOISE_A = 0.1, 0.01, 5e-4
 DEVICE = SunDevice()
-COS_LIT_MIN = np.cos(np.radians(sv.SunSolverConfig().max_incidence_deg))
+COS_LIT_MIN = np.cos(np.radians(sun_solver.SunSolverConfig().max_incidence_deg))
 
 #: name -> (sun elevation [deg], roll/pitch range [deg], fault kind, faulty cell index, direct-sun k [A])
 CASES = {
@@ -50,12 +51,12 @@ def simulate(seed: int, n: int, elevation_deg: float, tilt_deg: float, fault: st
     r_nb = euler_to_matrix(rng.uniform(-tilt, tilt, n), rng.uniform(-tilt, tilt, n), rng.uniform(-np.pi, np.pi, n))
     e, a = np.radians(elevation_deg), np.radians(57.0)
     s_ned = np.array([np.cos(e) * np.cos(a), np.cos(e) * np.sin(a), -np.sin(e)])
-    s_device, up = sv.device_sun_and_up(r_nb, np.broadcast_to(s_ned, (n, 3)), DEVICE)
-    currents = sv.photocell_currents(s_device, k_a, SKY_A, DEVICE, up) + rng.normal(0.0, NOISE_A, (n, 7))
+    s_device, up = photocells.device_sun_and_up(r_nb, np.broadcast_to(s_ned, (n, 3)), DEVICE)
+    currents = photocells.photocell_currents(s_device, k_a, SKY_A, DEVICE, up) + rng.normal(0.0, NOISE_A, (n, 7))
     if fault == "stuck":
         currents[:, cell] = 0.0
     elif fault == "shaded":
-        currents[:, cell] = sv.photocell_currents(s_device, 0.0, SKY_A, DEVICE, up)[:, cell]
+        currents[:, cell] = photocells.photocell_currents(s_device, 0.0, SKY_A, DEVICE, up)[:, cell]
     elif fault == "glint":
         currents[:, cell] += 0.03
     return currents, s_device, up
@@ -66,7 +67,7 @@ def accuracy_table(n: int) -> pd.DataFrame:
     for index, (name, (elevation, tilt, fault, cell, k_a)) in enumerate(CASES.items()):
         currents, s_true, up = simulate(index, n, elevation, tilt, fault, cell, k_a)
         row = {"case": name}
-        for label, solve in (("LS", sv.solve_sun_ls), ("ALS", sv.solve_sun_adaptive)):
+        for label, solve in (("LS", sun_solver.solve_sun_ls), ("ALS", sun_solver.solve_sun_adaptive)):
             solution = solve(currents, DEVICE, NOISE_A, up)
             valid = solution.valid
             error = np.degrees(np.arccos(np.clip(np.sum(solution.s_device[valid] * s_true[valid], axis=1), -1, 1)))
@@ -106,13 +107,13 @@ def main(argv: list[str] | None = None) -> None:
 
     healthy, _, up_healthy = simulate(98, args.epochs, 35.0, 20.0, None, None, K_A)
     stuck, _, up = simulate(99, args.epochs, 35.0, 20.0, "stuck", 3, K_A)
-    frame = pd.DataFrame(stuck, columns=list(sv.CURRENT_COLUMNS),
+    frame = pd.DataFrame(stuck, columns=list(photocells.CURRENT_COLUMNS),
                          index=pd.Index(0.1 * np.arange(args.epochs), name="time_s"))
     calls = {
-        "solve_sun_ls": lambda: sv.solve_sun_ls(stuck, DEVICE, NOISE_A, up),
-        "solve_sun_adaptive, healthy": lambda: sv.solve_sun_adaptive(healthy, DEVICE, NOISE_A, up_healthy),
-        "solve_sun_adaptive, stuck cell": lambda: sv.solve_sun_adaptive(stuck, DEVICE, NOISE_A, up),
-        "solve_sun_log, stuck cell": lambda: sv.solve_sun_log(frame, DEVICE),
+        "solve_sun_ls": lambda: sun_solver.solve_sun_ls(stuck, DEVICE, NOISE_A, up),
+        "solve_sun_adaptive, healthy": lambda: sun_solver.solve_sun_adaptive(healthy, DEVICE, NOISE_A, up_healthy),
+        "solve_sun_adaptive, stuck cell": lambda: sun_solver.solve_sun_adaptive(stuck, DEVICE, NOISE_A, up),
+        "solve_sun_log, stuck cell": lambda: sun_solver.solve_sun_log(frame, DEVICE),
     }
     for call in calls.values():  # compile / warm up
         call()

@@ -3,14 +3,14 @@
 >>> result = run_estimators(flight_log)                                  # doctest: +SKIP
 >>> result.states.groupby("estimator").yaw_deg.describe()                # doctest: +SKIP
 
-``states``: one row per estimator per output epoch with exactly :data:`~estimators.results.STATE_COLUMNS` (NaN
+``states``: one row per estimator per output epoch with exactly :data:`~estimators.core.results.STATE_COLUMNS` (NaN
 where an estimator has no such quantity) plus optional ``*_std`` columns; ``diagnostics``: one row per scalar
-measurement update with :data:`~estimators.results.DIAGNOSTIC_COLUMNS`; ``reports``: what each estimator used,
+measurement update with :data:`~estimators.core.results.DIAGNOSTIC_COLUMNS`; ``reports``: what each estimator used,
 skipped, degraded, reset, and how long it took.
 
 Estimators are looked up in :data:`ESTIMATORS`, a registry ``name -> "module:function"`` resolved on first use.
 An estimator's function has the signature ``run(flight_log, inputs, config) -> EstimatorRun`` where ``inputs``
-(:class:`~estimators.events.ReplayInputs`, built once per call and shared by all estimators) carries the IMU rows,
+(:class:`~estimators.inputs.records.ReplayInputs`, built once per call and shared by all estimators) carries the IMU rows,
 time-sorted measurement events, origin, sensor plan and initial alignment.
 """
 
@@ -25,17 +25,18 @@ import numpy as np
 import pandas as pd
 
 from estimators.config import EstimatorConfig
-from estimators.events import HEADING_SOURCES, build_replay_inputs
-from estimators.results import DIAGNOSTIC_COLUMNS, STATE_COLUMNS, EstimatorReport, EstimatorRun
+from estimators.core.results import DIAGNOSTIC_COLUMNS, STATE_COLUMNS, EstimatorReport, EstimatorRun
+from estimators.inputs.build import build_replay_inputs
+from estimators.inputs.records import HEADING_SOURCES
 from ingest.errors import InputError
 from ingest.flightlog import FlightLog
 
 #: Registry: estimator name -> ``"module:function"`` with the signature ``(flight_log, inputs, config) ->
 #: EstimatorRun``. Add an estimator with one line.
 ESTIMATORS: dict[str, str] = {
-    "three_stage": "estimators.three_stage:run",
-    "full_state_direct": "estimators.full_state_direct:run",
-    "full_state_indirect": "estimators.full_state_indirect:run",
+    "three_stage": "estimators.three_stage.kernel:run",
+    "full_state_direct": "estimators.direct.kernel:run",
+    "full_state_indirect": "estimators.indirect.kernel:run",
 }
 #: Default estimator selection (all three, paper order).
 DEFAULT_ESTIMATORS = ("three_stage", "full_state_direct", "full_state_indirect")
@@ -48,10 +49,10 @@ class ReplayResult:
     Attributes
     ----------
     states : pandas.DataFrame
-        :data:`~estimators.results.STATE_COLUMNS` (+ optional std columns), estimators stacked in the requested
+        :data:`~estimators.core.results.STATE_COLUMNS` (+ optional std columns), estimators stacked in the requested
         order, each sorted by ``time_s``.
     diagnostics : pandas.DataFrame
-        :data:`~estimators.results.DIAGNOSTIC_COLUMNS`.
+        :data:`~estimators.core.results.DIAGNOSTIC_COLUMNS`.
     reports : dict of str -> EstimatorReport
         Per estimator, in the requested order.
     """
@@ -115,7 +116,7 @@ def run_estimators(flight_log: FlightLog, *, estimators: str | Sequence[str] = D
     rate_hz : float
         Output rate [Hz] (epochs ``k / rate_hz`` on the log clock).
     sun_observations : pandas.DataFrame, optional
-        Pre-solved sun vectors (see :func:`estimators.events.build_replay_inputs`).
+        Pre-solved sun vectors (see :func:`estimators.inputs.build.build_replay_inputs`).
 
     Returns
     -------

@@ -1,6 +1,6 @@
 """The 7-photocell sun device: cell currents from the true attitude and the sun's position (math note 8.2).
 
-The current model is :func:`estimators.sun_vector.photocell_currents` (direct sun on lit cells plus isotropic sky
+The current model is :func:`estimators.sun.photocells.photocell_currents` (direct sun on lit cells plus isotropic sky
 light weighted by each cell's view of the sky); the sun direction comes from NREL SPA at the true position and
 time. Faults: one cell stuck at 0 A over a time window, and a cloud that dims the direct sun over a window.
 """
@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from estimators.sun_vector import CURRENT_COLUMNS, device_sun_and_up, photocell_currents
+from estimators.sun.photocells import CURRENT_COLUMNS, device_sun_and_up, photocell_currents
 from ingest.frames import quat_to_matrix
 from ingest.sun_device import N_CELLS, SunDevice
 from sim.kinematics import Site, Truth

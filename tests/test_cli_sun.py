@@ -10,8 +10,8 @@ import pandas as pd
 import pytest
 
 from app.cli import EXIT_BAD_INPUT, main
-from estimators import sun_vector as sv
-from estimators.sun_prediction import attitude_matrices_at, sun_ned_at
+from estimators.sun import photocells
+from estimators.sun.prediction import attitude_matrices_at, sun_ned_at
 from ingest.sun_device import SunDevice
 from ingest.ulog_reader import load_flight_log
 from tests.conftest import SAMPLE_LOGS_DIR
@@ -70,8 +70,8 @@ def _synthetic_sun_csv(log, path, device, rng):
     r_nb = attitude_matrices_at(log, "onboard", time_s)
     s_ned, elevation = sun_ned_at(log, time_s)
     assert np.isfinite(r_nb).all() and elevation.min() > 10.0
-    s_device, up_device = sv.device_sun_and_up(r_nb, s_ned, device)
-    currents_ma = 1e3 * sv.photocell_currents(s_device, 0.1, 0.01, device, up_device)
+    s_device, up_device = photocells.device_sun_and_up(r_nb, s_ned, device)
+    currents_ma = 1e3 * photocells.photocell_currents(s_device, 0.1, 0.01, device, up_device)
     currents_ma += rng.normal(0.0, 0.5, currents_ma.shape)
     lines = ["unix_time_s," + ",".join(MA_COLUMNS)]
     lines += [f"{t + log.meta.utc_offset_s:.3f}," + ",".join(f"{c:.4f}" for c in row)

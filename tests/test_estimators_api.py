@@ -12,14 +12,14 @@ import pytest
 from app.cli import main
 from estimators.api import ESTIMATORS, parse_estimator_names, run_estimators
 from estimators.config import EstimatorConfig, config_from_calibration
-from estimators.events import Origin
-from estimators.results import (
+from estimators.core.results import (
     DIAGNOSTIC_COLUMNS,
     DIAGNOSTIC_SENSOR_NAMES,
     STATE_COLUMNS,
     STD_COLUMNS,
     states_frame,
 )
+from estimators.inputs.records import Origin
 from ingest.errors import InputError
 from tests.estimators_synthetic import synthetic_flight
 

@@ -1,4 +1,4 @@
-"""EKF core algebra (estimators.ekf_core) against textbook NumPy forms, and the event builder (estimators.events)
+"""EKF core algebra (estimators.core.linalg) against textbook NumPy forms, and the event builder (estimators.inputs.build)
 on small in-memory logs."""
 
 from __future__ import annotations
@@ -9,8 +9,9 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from estimators import ekf_core, events
 from estimators.config import EstimatorConfig
+from estimators.core import linalg, recorder, rotations
+from estimators.inputs import alignment, build, records
 from ingest.errors import InputError
 from ingest.flightlog import FlightLog, LogMetadata
 
@@ -30,7 +31,7 @@ def test_transition_matrix_is_second_order_series(rows):
     A = np.zeros((9, 9))
     A[rows] = rng.normal(size=(len(rows), 9))
     F = np.empty_like(A)
-    ekf_core.transition_matrix(A, 0.01, F)
+    linalg.transition_matrix(A, 0.01, F)
     expected = np.eye(9) + A * 0.01 + (A @ A) * 0.01 ** 2 / 2
     np.testing.assert_allclose(F, expected, rtol=0, atol=1e-15)
 
@@ -44,7 +45,7 @@ def test_propagate_covariance_equals_dense_form(rows):
     F[rows] += 0.05 * rng.normal(size=(len(rows), n))  # the other rows without dynamics, as bias states
     Qd = 1e-3 * _random_spd(rng, n)
     expected = F @ P @ F.T + Qd
-    ekf_core.propagate_covariance(P, F, Qd, np.empty((n, n)))
+    linalg.propagate_covariance(P, F, Qd, np.empty((n, n)))
     np.testing.assert_allclose(P, expected, rtol=1e-13, atol=1e-13)
     assert np.array_equal(P, P.T)
 
@@ -61,7 +62,7 @@ def test_scalar_update_is_joseph_form_with_gate(gate):
     for nu in (0.1 * math.sqrt(S_expected), 10.0 * math.sqrt(S_expected)):
         P = P0.copy()
         dx, ph = np.empty(n), np.empty(n)
-        accepted, s_var, nis = ekf_core.scalar_update(P, H, nu, r_var, gate, dx, ph)
+        accepted, s_var, nis = linalg.scalar_update(P, H, nu, r_var, gate, dx, ph)
         assert s_var == pytest.approx(S_expected, rel=1e-12)
         assert nis == pytest.approx(nu ** 2 / S_expected, rel=1e-12)
         K = P0 @ H / S_expected
@@ -80,7 +81,7 @@ def test_scalar_update_rejects_non_finite_innovation():
     P = np.eye(3)
     H = np.array([1.0, 0.0, 0.0])
     dx = np.ones(3)
-    accepted, _, nis = ekf_core.scalar_update(P, H, math.nan, 1.0, math.inf, dx, np.empty(3))
+    accepted, _, nis = linalg.scalar_update(P, H, math.nan, 1.0, math.inf, dx, np.empty(3))
     assert not accepted and math.isnan(nis)
     np.testing.assert_array_equal(P, np.eye(3))
     np.testing.assert_array_equal(dx, 0.0)
@@ -93,26 +94,26 @@ def test_repair_covariance_limits_and_pd():
     work = np.empty((n, n))
     lo, hi = np.full(n, 1e-9), np.full(n, 1e9)
     before = P.copy()
-    assert not ekf_core.repair_covariance(P, lo, hi, work, 1e-12)
+    assert not linalg.repair_covariance(P, lo, hi, work, 1e-12)
     np.testing.assert_array_equal(P, before)
     # variance cap scales the row and column, keeping the correlation
     hi[2] = P[2, 2] / 4
-    ekf_core.repair_covariance(P, lo, hi, work, 1e-12)
+    linalg.repair_covariance(P, lo, hi, work, 1e-12)
     assert P[2, 2] == pytest.approx(hi[2])
     corr = lambda m: m[2, 0] / math.sqrt(m[2, 2] * m[0, 0])  # noqa: E731
     assert corr(P) == pytest.approx(corr(before))
     # an indefinite matrix is repaired
     bad = np.array([[1.0, 2.0, 0.0], [2.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
-    assert ekf_core.repair_covariance(bad, np.zeros(3), np.full(3, 1e9), np.empty((3, 3)), 1e-9)
+    assert linalg.repair_covariance(bad, np.zeros(3), np.full(3, 1e9), np.empty((3, 3)), 1e-9)
     assert np.linalg.eigvalsh(bad).min() >= 1e-9 * 0.999
 
 
 def test_divergence_detection_and_reset():
     x, P = np.array([1.0, np.nan]), np.eye(2)
-    assert not ekf_core.is_healthy(x, P)
-    assert not ekf_core.is_healthy(np.zeros(2), np.array([[1.0, np.inf], [np.inf, 1.0]]))
-    assert ekf_core.is_healthy(np.zeros(2), np.eye(2))
-    ekf_core.reset_filter(x, P, np.array([3.0, 4.0]), 2 * np.eye(2))
+    assert not linalg.is_healthy(x, P)
+    assert not linalg.is_healthy(np.zeros(2), np.array([[1.0, np.inf], [np.inf, 1.0]]))
+    assert linalg.is_healthy(np.zeros(2), np.eye(2))
+    linalg.reset_filter(x, P, np.array([3.0, 4.0]), 2 * np.eye(2))
     np.testing.assert_array_equal(x, [3.0, 4.0])
     np.testing.assert_array_equal(P, 2 * np.eye(2))
 
@@ -120,15 +121,15 @@ def test_divergence_detection_and_reset():
 def test_recorders_count_and_drop():
     diag_f, diag_i, counter = np.zeros((2, 4)), np.zeros((2, 3), dtype=np.int64), np.zeros(2, dtype=np.int64)
     for k in range(3):
-        ekf_core.record_update(diag_f, diag_i, counter, 0.1 * k, 3, 1, 0.5, 2.0, 0.125, k % 2 == 0)
+        recorder.record_update(diag_f, diag_i, counter, 0.1 * k, 3, 1, 0.5, 2.0, 0.125, k % 2 == 0)
     assert counter[0] == 2 and counter[1] == 1
     np.testing.assert_allclose(diag_f[1], [0.1, 0.5, 2.0, 0.125])
     np.testing.assert_array_equal(diag_i[:, 2], [1, 0])
     out = np.zeros((2, 3))
-    ekf_core.record_output(out, 1, np.array([1.0, 2.0, 3.0]))
-    ekf_core.record_output(out, 5, np.array([1.0, 2.0, 3.0]))  # out of range: ignored
+    recorder.record_output(out, 1, np.array([1.0, 2.0, 3.0]))
+    recorder.record_output(out, 5, np.array([1.0, 2.0, 3.0]))  # out of range: ignored
     np.testing.assert_array_equal(out, [[0, 0, 0], [1, 2, 3]])
-    assert ekf_core.wrap_pi(math.pi) == pytest.approx(-math.pi)
+    assert rotations.wrap_pi(math.pi) == pytest.approx(-math.pi)
 
 
 # ----------------------------------------------------------------------------------------------------------------
@@ -163,7 +164,7 @@ def _still_log(duration_s=10.0, imu_hz=250.0, *, gps=True, mag=True, mav_type=2,
 
 
 def test_events_sorted_with_imu_interval_index():
-    inputs = events.build_replay_inputs(_still_log(), rate_hz=50.0)
+    inputs = build.build_replay_inputs(_still_log(), rate_hz=50.0)
     ev, t_imu = inputs.events, inputs.imu.time_s
     assert np.all(np.diff(ev.time_s) >= 0)
     # each event lies in the interval (t[k-1], t[k]] of its IMU row
@@ -173,7 +174,7 @@ def test_events_sorted_with_imu_interval_index():
     # equal times: kinds in processing order, output last
     same = np.diff(ev.time_s) == 0
     assert np.all(np.diff(ev.kind)[same] > 0)
-    out = ev.time_s[ev.kind == events.OUTPUT]
+    out = ev.time_s[ev.kind == records.OUTPUT]
     np.testing.assert_allclose(out, inputs.output_time_s)
     np.testing.assert_allclose(np.diff(out), 0.02, atol=1e-9)
     assert set(inputs.plan.used) == {"baro", "gps_pos", "gps_vel", "mag"}
@@ -183,24 +184,24 @@ def test_events_sorted_with_imu_interval_index():
 
 def test_gps_delay_from_parameter_and_default():
     log = _still_log(params={"EKF2_GPS_DELAY": 200.0})
-    inputs = events.build_replay_inputs(log)
-    gps_t = inputs.events.time_s[inputs.events.kind == events.GPS_POS]
+    inputs = build.build_replay_inputs(log)
+    gps_t = inputs.events.time_s[inputs.events.kind == records.GPS_POS]
     assert inputs.gps_delay_s == pytest.approx(0.2)
     np.testing.assert_allclose(gps_t[:3], log["gps"].index[:3] - 0.2)
-    default = events.build_replay_inputs(_still_log())
+    default = build.build_replay_inputs(_still_log())
     assert default.gps_delay_s == pytest.approx(0.11)
-    np.testing.assert_allclose(default.events.time_s[default.events.kind == events.GPS_POS][:3],
+    np.testing.assert_allclose(default.events.time_s[default.events.kind == records.GPS_POS][:3],
                                log["gps"].index[:3] - 0.11)
     config = EstimatorConfig(timing=EstimatorConfig().timing.__class__(gps_delay_s=0.0))
-    assert events.build_replay_inputs(log, config).gps_delay_s == 0.0
+    assert build.build_replay_inputs(log, config).gps_delay_s == 0.0
     # without the parameter, a logged sample time is the measurement time
     sampled = _still_log()
     gps = sampled["gps"].copy()
     gps["sample_time_s"] = gps.index - 0.07
     sampled.streams["gps"] = gps
-    inputs = events.build_replay_inputs(sampled)
+    inputs = build.build_replay_inputs(sampled)
     assert inputs.gps_time_rule == "sample_time_s"
-    np.testing.assert_allclose(inputs.events.time_s[inputs.events.kind == events.GPS_VEL][:3], gps.index[:3] - 0.07)
+    np.testing.assert_allclose(inputs.events.time_s[inputs.events.kind == records.GPS_VEL][:3], gps.index[:3] - 0.07)
 
 
 def test_sample_time_and_duplicates():
@@ -211,14 +212,14 @@ def test_sample_time_and_duplicates():
     sample[6] = sample[5]
     baro["sample_time_s"] = sample
     log.streams["baro"] = baro
-    inputs = events.build_replay_inputs(log)
-    baro_t = inputs.events.time_s[inputs.events.kind == events.BARO]
+    inputs = build.build_replay_inputs(log)
+    baro_t = inputs.events.time_s[inputs.events.kind == records.BARO]
     assert len(baro_t) == len(baro) - 1 - np.count_nonzero(sample < inputs.imu.time_s[0])
     np.testing.assert_allclose(baro_t[:5], sample[sample >= inputs.imu.time_s[0]][:5])
     # duplicate IMU rows are dropped and counted
     imu = log["imu"]
     log.streams["imu"] = pd.concat([imu.iloc[:50], imu.iloc[49:]])
-    assert events.build_replay_inputs(log).imu.n_dropped == 1
+    assert build.build_replay_inputs(log).imu.n_dropped == 1
     # so are a non-finite row and a step back in time
     bad = imu.copy()
     bad.iloc[10, bad.columns.get_loc("accel_y_m_s2")] = np.nan
@@ -226,7 +227,7 @@ def test_sample_time_and_duplicates():
     time_s[20] = time_s[18]
     bad.index = pd.Index(time_s, name=imu.index.name)
     log.streams["imu"] = bad
-    samples = events.build_replay_inputs(log).imu
+    samples = build.build_replay_inputs(log).imu
     assert samples.n_dropped == 2 and len(samples.time_s) == len(bad) - 2
     assert np.all(np.diff(samples.time_s) > 0) and np.isfinite(samples.accel_m_s2).all()
     np.testing.assert_array_equal(samples.gyro_rad_s[10], bad.iloc[11][["gyro_x_rad_s", "gyro_y_rad_s",
@@ -234,15 +235,15 @@ def test_sample_time_and_duplicates():
 
 
 def test_baro_offset_and_heights():
-    inputs = events.build_replay_inputs(_still_log())
+    inputs = build.build_replay_inputs(_still_log())
     assert inputs.baro_offset_m == pytest.approx(2.0)
     assert inputs.origin.source == "gps" and inputs.origin.alt_m == 500.0
-    baro = inputs.events.values[inputs.events.kind == events.BARO, 0]
+    baro = inputs.events.values[inputs.events.kind == records.BARO, 0]
     np.testing.assert_allclose(baro, 0.0, atol=1e-9)
 
 
 def test_alignment_from_still_window():
-    inputs = events.build_replay_inputs(_still_log())
+    inputs = build.build_replay_inputs(_still_log())
     a = inputs.alignment
     assert a.tilt_source == "still_window" and a.still_window_s is not None
     assert abs(a.roll_rad) < 1e-12 and abs(a.pitch_rad) < 1e-12
@@ -254,7 +255,7 @@ def test_alignment_from_still_window():
 
 
 def _still_window_whole_log(imu, gravity_m_s2, config):
-    """Oracle for events.still_window: 0.2 s moving averages of the whole log by np.convolve."""
+    """Oracle for alignment.still_window: 0.2 s moving averages of the whole log by np.convolve."""
     n_avg = round(0.2 / imu.median_dt_s)
     kernel = np.ones(n_avg) / n_avg
     gyro = np.column_stack([np.convolve(imu.gyro_rad_s[:, i], kernel, mode="same") for i in range(3)])
@@ -281,30 +282,30 @@ def test_still_window_ends_at_the_first_motion(still_s):
     accel = rng.normal(0.0, 0.02, (len(time_s), 3)) + np.array([0.0, 0.0, -9.81])
     if still_s is not None:
         gyro[time_s >= 10.0 + still_s, 2] += 0.5
-    imu = events.ImuSamples(time_s=time_s, gyro_rad_s=gyro, accel_m_s2=accel, median_dt_s=0.004, gaps=(),
+    imu = records.ImuSamples(time_s=time_s, gyro_rad_s=gyro, accel_m_s2=accel, median_dt_s=0.004, gaps=(),
                             n_dropped=0)
     config = EstimatorConfig()
-    window = events.still_window(imu, 9.81, config)
+    window = alignment.still_window(imu, 9.81, config)
     assert window == _still_window_whole_log(imu, 9.81, config)
     expected_end_s = 120.0 if still_s is None or still_s > 120.0 else still_s
     assert time_s[window[1] - 1] - 10.0 == pytest.approx(expected_end_s, abs=0.15)
 
 
 def test_degraded_plans():
-    no_gps = events.build_replay_inputs(_still_log(gps=False))
-    assert not no_gps.plan.has_gps and no_gps.events.count(events.ZERO_VELOCITY) > 0
+    no_gps = build.build_replay_inputs(_still_log(gps=False))
+    assert not no_gps.plan.has_gps and no_gps.events.count(records.ZERO_VELOCITY) > 0
     assert no_gps.mag_field_source == "declination_parameter"
-    no_mag = events.build_replay_inputs(_still_log(mag=False))
+    no_mag = build.build_replay_inputs(_still_log(mag=False))
     assert any("yaw dead-reckoned" in d for d in no_mag.plan.degradations)
-    fixed_wing_on_ground = events.build_replay_inputs(_still_log(mav_type=1))
-    assert fixed_wing_on_ground.plan.fixed_wing and fixed_wing_on_ground.events.count(events.SIDESLIP) == 0
+    fixed_wing_on_ground = build.build_replay_inputs(_still_log(mav_type=1))
+    assert fixed_wing_on_ground.plan.fixed_wing and fixed_wing_on_ground.events.count(records.SIDESLIP) == 0
     with pytest.raises(InputError, match="sun"):
-        events.build_replay_inputs(_still_log(), heading="sun")
+        build.build_replay_inputs(_still_log(), heading="sun")
     with pytest.raises(InputError, match="heading"):
-        events.build_replay_inputs(_still_log(), heading="compass")
+        build.build_replay_inputs(_still_log(), heading="compass")
     with pytest.raises(InputError, match="rate"):
-        events.build_replay_inputs(_still_log(), rate_hz=0.0)
+        build.build_replay_inputs(_still_log(), rate_hz=0.0)
     empty = _still_log()
     del empty.streams["imu"]
     with pytest.raises(InputError, match="IMU"):
-        events.build_replay_inputs(empty)
+        build.build_replay_inputs(empty)

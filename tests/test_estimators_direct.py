@@ -9,11 +9,12 @@ import math
 import numpy as np
 import pytest
 
-from estimators import events
-from estimators import full_state_direct as fsd
-from estimators import full_state_direct_numpy as ref
 from estimators.config import EstimatorConfig
-from estimators.events import AIRSPEED, BARO, GPS_POS, GPS_VEL, MAG, SIDESLIP, SUN, ZERO_VELOCITY
+from estimators.core import linalg
+from estimators.direct import kernel as direct_kernel
+from estimators.direct import reference as ref
+from estimators.inputs import build, records
+from estimators.inputs.records import AIRSPEED, BARO, GPS_POS, GPS_VEL, MAG, SIDESLIP, SUN, ZERO_VELOCITY
 from tests.estimators_synthetic import synthetic_flight
 
 G = 9.79
@@ -55,7 +56,7 @@ def _central_difference(fun, x, step=FD_STEP):
 def _numba_f(gyro, accel, layout=FULL_LAYOUT):
     def f(x):
         out = np.empty(len(x))
-        fsd.derivative(x, gyro, accel, G, layout, *_scratch(), out)
+        direct_kernel.derivative(x, gyro, accel, G, layout, *_scratch(), out)
         return out
     return f
 
@@ -66,7 +67,7 @@ def test_process_jacobian_matches_finite_differences(seed):
     x = _random_state(rng)
     gyro, accel = rng.normal(0, 0.3, 3), rng.normal(0, 3, 3) + np.array([0, 0, -G])
     A = np.zeros((N_FULL, N_FULL))
-    fsd.jacobian(x, gyro, G, FULL_LAYOUT, *_scratch(), A)
+    direct_kernel.jacobian(x, gyro, G, FULL_LAYOUT, *_scratch(), A)
     A_fd = _central_difference(_numba_f(gyro, accel), x)
     np.testing.assert_allclose(A, A_fd, rtol=RTOL, atol=ATOL)
     # the twin's matrix-form Jacobian and dynamics agree with the kernel's
@@ -84,7 +85,7 @@ def test_process_noise_is_input_jacobian_quadratic_form(seed):
     ng2, na2 = 3e-6, 1e-3
     rw = rng.uniform(0, 1e-6, N_FULL)
     Qc = np.zeros((N_FULL, N_FULL))
-    fsd.process_noise(x, ng2, na2, rw, 1.0, *_scratch(), Qc)
+    direct_kernel.process_noise(x, ng2, na2, rw, 1.0, *_scratch(), Qc)
     G_g = _central_difference(lambda g: _numba_f(g, accel)(x), gyro)
     G_a = _central_difference(lambda a: _numba_f(gyro, a)(x), accel)
     expected = ng2 * G_g @ G_g.T + na2 * G_a @ G_a.T + np.diag(rw)
@@ -112,9 +113,9 @@ def test_measurement_jacobians_match_finite_differences(kind, comp, layout):
         H = np.empty(n)
 
         def h(xx):
-            return fsd.measurement(xx, kind, comp, values, field, layout, *_scratch(), np.empty(n))
+            return direct_kernel.measurement(xx, kind, comp, values, field, layout, *_scratch(), np.empty(n))
 
-        h0 = fsd.measurement(x, kind, comp, values, field, layout, *_scratch(), H)
+        h0 = direct_kernel.measurement(x, kind, comp, values, field, layout, *_scratch(), H)
         H_fd = _central_difference(lambda xx: np.array([h(xx)]), x)[0]
         np.testing.assert_allclose(H, H_fd, rtol=RTOL, atol=ATOL)
         h_ref, H_ref = ref.h_and_H(x, kind, comp, values, field, layout)
@@ -129,11 +130,10 @@ def test_transition_matches_matrix_exponential_for_small_steps():
     rng = np.random.default_rng(7)
     x = _random_state(rng)
     A = np.zeros((N_FULL, N_FULL))
-    fsd.jacobian(x, rng.normal(0, 0.3, 3), G, FULL_LAYOUT, *_scratch(), A)
+    direct_kernel.jacobian(x, rng.normal(0, 0.3, 3), G, FULL_LAYOUT, *_scratch(), A)
     F = np.empty_like(A)
-    from estimators import ekf_core
 
-    ekf_core.transition_matrix(A, 0.01, F)
+    linalg.transition_matrix(A, 0.01, F)
     assert np.abs(F - expm(A * 0.01)).max() < np.linalg.norm(A * 0.01, 2) ** 3
 
 
@@ -150,10 +150,10 @@ def short_flight():
 @pytest.mark.parametrize("velocity_mode", ["ned", "paper"])
 def test_numba_kernel_equals_numpy_twin(short_flight, velocity_mode):
     config = EstimatorConfig(gps_velocity_mode=velocity_mode)
-    inputs = events.build_replay_inputs(short_flight, config)
+    inputs = build.build_replay_inputs(short_flight, config)
     assert set(inputs.plan.used) == {"baro", "airspeed", "sideslip", "gps_pos", "gps_vel", "mag"}
-    fast = fsd.run(short_flight, inputs, config, backend="numba")
-    slow = fsd.run(short_flight, inputs, config, backend="numpy")
+    fast = direct_kernel.run(short_flight, inputs, config, backend="numba")
+    slow = direct_kernel.run(short_flight, inputs, config, backend="numpy")
     numeric = [c for c in fast.states.columns if c != "time_s"]
     assert len(fast.states) == len(slow.states) == inputs.output_time_s.size
     diff = np.abs(fast.states[numeric].to_numpy() - slow.states[numeric].to_numpy())
@@ -173,15 +173,15 @@ def test_paper_literal_indirect_equals_direct(short_flight):
     round-off; with the nonlinear ones the only difference is the re-linearisation between the scalars of one
     sensor, a second-order effect."""
     config = EstimatorConfig()
-    inputs = events.build_replay_inputs(short_flight, config)
-    linear = events.ReplayInputs(**{**inputs.__dict__,
+    inputs = build.build_replay_inputs(short_flight, config)
+    linear = records.ReplayInputs(**{**inputs.__dict__,
                                     "events": inputs.events.without((AIRSPEED, SIDESLIP, GPS_VEL, MAG))})
-    direct = fsd.run(short_flight, linear, config)
-    paper = fsd.run(short_flight, linear, config, mode="paper_indirect")
+    direct = direct_kernel.run(short_flight, linear, config)
+    paper = direct_kernel.run(short_flight, linear, config, mode="paper_indirect")
     numeric = [c for c in direct.states.columns if c != "time_s"]
     assert np.nanmax(np.abs(direct.states[numeric].to_numpy() - paper.states[numeric].to_numpy())) < 1e-9
-    direct_all = fsd.run(short_flight, inputs, config)
-    paper_all = fsd.run(short_flight, inputs, config, mode="paper_indirect")
+    direct_all = direct_kernel.run(short_flight, inputs, config)
+    paper_all = direct_kernel.run(short_flight, inputs, config, mode="paper_indirect")
     # after the first 5 s (large initial corrections, where the missing re-linearisation matters most)
     half = slice(len(direct_all.states) // 2, None)
     d, p = direct_all.states.iloc[half], paper_all.states.iloc[half]
@@ -210,7 +210,7 @@ def _rms_vs_truth(log, states, after_s):
 def test_accuracy_and_bias_estimation_on_synthetic_flight():
     log = synthetic_flight(60.0, seed=1)
     config = EstimatorConfig()
-    run = fsd.run(log, events.build_replay_inputs(log, config), config)
+    run = direct_kernel.run(log, build.build_replay_inputs(log, config), config)
     rms = _rms_vs_truth(log, run.states, after_s=20.0)
     assert rms["roll_deg"] < 0.3 and rms["pitch_deg"] < 0.3 and rms["yaw_deg"] < 0.5, rms
     assert rms["wind_m_s"] < 0.2, rms
@@ -227,13 +227,13 @@ def test_degraded_modes_run_without_nan():
     config = EstimatorConfig()
     # multicopter without airspeed: no wind, no sideslip
     copter = synthetic_flight(10.0, seed=4, mav_type=2, with_airspeed=False)
-    run = fsd.run(copter, events.build_replay_inputs(copter, config), config)
+    run = direct_kernel.run(copter, build.build_replay_inputs(copter, config), config)
     assert run.states["wind_n_m_s"].isna().all()
     assert "sideslip" not in run.report.used and "wn" not in run.report.details["states"]
     assert run.states[["roll_deg", "pitch_deg", "yaw_deg", "lat_deg", "vn_m_s"]].notna().all().all()
     # no GPS: attitude and height only, no accelerometer bias states
     blind = synthetic_flight(10.0, seed=5, with_gps=False)
-    run = fsd.run(blind, events.build_replay_inputs(blind, config), config)
+    run = direct_kernel.run(blind, build.build_replay_inputs(blind, config), config)
     assert run.states["lat_deg"].isna().all() and run.states["vn_m_s"].isna().all()
     assert run.states[["roll_deg", "pitch_deg", "yaw_deg", "alt_m"]].notna().all().all()
     assert "bax" not in run.report.details["states"]
@@ -242,12 +242,12 @@ def test_degraded_modes_run_without_nan():
 
 def test_divergence_is_reset_never_nan(short_flight):
     config = EstimatorConfig()
-    inputs = events.build_replay_inputs(short_flight, config)
+    inputs = build.build_replay_inputs(short_flight, config)
     gyro = inputs.imu.gyro_rad_s.copy()
     gyro[1200] = 1e300  # an absurd sample makes the state overflow
-    broken = events.ReplayInputs(**{**inputs.__dict__, "imu": events.ImuSamples(
+    broken = records.ReplayInputs(**{**inputs.__dict__, "imu": records.ImuSamples(
         **{**inputs.imu.__dict__, "gyro_rad_s": gyro})})
-    run = fsd.run(short_flight, broken, config)
+    run = direct_kernel.run(short_flight, broken, config)
     assert run.report.resets >= 1
     assert any("reset" in w for w in run.report.warnings)
     assert run.states.drop(columns=["wind_n_m_s_std", "wind_e_m_s_std"]).notna().all().all()
@@ -255,11 +255,11 @@ def test_divergence_is_reset_never_nan(short_flight):
 
 def test_state_table_builds_x0_p0_q():
     config = EstimatorConfig()
-    table = fsd.state_table(config, accel_bias=True, wind=True, mag_bias=False, baro_bias=True, absolute_yaw=False)
+    table = direct_kernel.state_table(config, accel_bias=True, wind=True, mag_bias=False, baro_bias=True, absolute_yaw=False)
     names = [s.name for s in table]
     assert names[:12] == ["pn", "pe", "pd", "u", "v", "w", "roll", "pitch", "yaw", "bgx", "bgy", "bgz"]
-    layout = fsd.layout_of(table)
-    assert names[layout[fsd.L_BA]] == "bax" and names[layout[fsd.L_W]] == "wn" and layout[fsd.L_BM] == -1
+    layout = direct_kernel.layout_of(table)
+    assert names[layout[direct_kernel.L_BA]] == "bax" and names[layout[direct_kernel.L_W]] == "wn" and layout[direct_kernel.L_BM] == -1
     yaw = table[names.index("yaw")]
     assert yaw.initial_sigma == pytest.approx(math.radians(config.initial.yaw_unaided_deg))
     assert table[names.index("wn")].process_sigma == config.noise.wind_rw_m_s_sqrt_s

@@ -17,20 +17,22 @@ import math
 import numpy as np
 import pytest
 
-from estimators import ekf_core, environment, events
-from estimators import full_state_direct as fsd
-from estimators import full_state_indirect as fsi
-from estimators import three_stage as ts
+from estimators import environment
 from estimators.config import EstimatorConfig
+from estimators.core import linalg, reacquisition
+from estimators.direct import kernel as direct_kernel
+from estimators.direct.reference import GpsMonitor
 from estimators.evaluation import config_for_simulation, rms_errors
-from estimators.events import GPS_POS, GPS_VEL
-from estimators.full_state_direct_numpy import GpsMonitor
+from estimators.indirect import kernel as fsi
+from estimators.inputs import build
+from estimators.inputs.records import GPS_POS, GPS_VEL
+from estimators.three_stage import kernel as ts
 from ingest.flightlog import FlightLog
 from ingest.ulog_reader import load_flight_log
 from tests.conftest import SAMPLE_LOGS_DIR
 from tests.estimators_synthetic import ALT0, LAT0, LON0, synthetic_flight
 
-RUNNERS = {"three_stage": ts.run, "full_state_direct": fsd.run, "full_state_indirect": fsi.run}
+RUNNERS = {"three_stage": ts.run, "full_state_direct": direct_kernel.run, "full_state_indirect": fsi.run}
 #: Per-axis GPS position sigma of the synthetic flight [m].
 GPS_SIGMA_M = 0.5
 #: "Within a few GPS sigma": the horizontal position RMS bar after recovery [m].
@@ -83,16 +85,16 @@ def _rms(values) -> float:
 def test_rule_on_event_sequences():
     """First fix: position only; a single rejected channel for T_rej: position now, velocity at its next event,
     one reset counted; an outage longer than T_out: both, counted; shorter: none. The NumPy twin agrees."""
-    mon = ekf_core.gps_monitor()
+    mon = reacquisition.gps_monitor()
     twin = GpsMonitor(T_REJ_S, T_OUT_S)
 
     def due(position, t):
-        got = ekf_core.gps_reset_due(mon, position, t, T_REJ_S, T_OUT_S)
+        got = reacquisition.gps_reset_due(mon, position, t, T_REJ_S, T_OUT_S)
         assert twin.reset_due(GPS_POS if position else GPS_VEL, t) == got
         return got
 
     def record(position, comp, t, accepted):
-        ekf_core.gps_record(mon, position, comp, t, accepted)
+        reacquisition.gps_record(mon, position, comp, t, accepted)
         twin.record(GPS_POS if position else GPS_VEL, comp, t, accepted)
 
     assert due(True, 0.0) == (True, False)  # acquisition: position reset, not counted
@@ -129,7 +131,7 @@ def test_reset_covariance_block():
     a = rng.normal(size=(6, 6))
     P = a @ a.T
     block = np.diag([1.0, 2.0])
-    ekf_core.reset_covariance_block(P, 2, block)
+    linalg.reset_covariance_block(P, 2, block)
     np.testing.assert_array_equal(P[2:4, 2:4], block)
     assert not P[2:4, [0, 1, 4, 5]].any() and not P[[0, 1, 4, 5], 2:4].any()
 
@@ -145,7 +147,7 @@ def paper_bad_start():
     log = load_flight_log(SAMPLE_LOGS_DIR / "paper.ulg")
     sidecar = json.loads((SAMPLE_LOGS_DIR / "paper_sim.json").read_text())
     config = config_for_simulation(sidecar)
-    inputs = events.build_replay_inputs(log, config)
+    inputs = build.build_replay_inputs(log, config)
     align = inputs.alignment
     wrong = dataclasses.replace(align, yaw_rad=align.yaw_rad + math.radians(61.0),
                                 velocity_ned_m_s=align.velocity_ned_m_s + np.array([4.0, -4.0, 0.0]))
@@ -180,7 +182,7 @@ def test_one_rejected_component_resets_position_and_velocity(name):
     step_at, step = 40.0, 30.0
     log = _north_step(synthetic_flight(70.0, seed=5, turn_rate_deg_s=6.0), step_at, step)
     config = EstimatorConfig()
-    run = RUNNERS[name](log, events.build_replay_inputs(log, config), config)
+    run = RUNNERS[name](log, build.build_replay_inputs(log, config), config)
     assert run.report.gps_resets == 1
     t, err = _horizontal_error(log, run.states, north_offset_m=step)
     after = t >= step_at + T_REJ_S + 2.0
@@ -198,8 +200,8 @@ def test_outage_longer_than_t_out_resets_at_the_return(name):
     config = EstimatorConfig()
     short = _outage(log, 25.0, 0.8 * T_OUT_S)
     long = _outage(log, 25.0, 1.5 * T_OUT_S)
-    assert RUNNERS[name](short, events.build_replay_inputs(short, config), config).report.gps_resets == 0
-    run = RUNNERS[name](long, events.build_replay_inputs(long, config), config)
+    assert RUNNERS[name](short, build.build_replay_inputs(short, config), config).report.gps_resets == 0
+    run = RUNNERS[name](long, build.build_replay_inputs(long, config), config)
     assert run.report.gps_resets == 1
     t, err = _horizontal_error(long, run.states)
     assert _rms(err[t >= 25.0 + 1.5 * T_OUT_S + 1.0]) < RECOVERED_RMS_M
@@ -211,7 +213,7 @@ def test_numba_kernel_equals_numpy_twin_through_resets(estimator):
     NumPy twin."""
     log = _north_step(synthetic_flight(10.0, seed=3), 2.0, 20.0)
     config = EstimatorConfig()
-    inputs = events.build_replay_inputs(log, config)
+    inputs = build.build_replay_inputs(log, config)
     fast = RUNNERS[estimator](log, inputs, config, backend="numba")
     slow = RUNNERS[estimator](log, inputs, config, backend="numpy")
     assert fast.report.gps_resets == slow.report.gps_resets == 1

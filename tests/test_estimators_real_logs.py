@@ -8,7 +8,7 @@ import pytest
 
 from estimators import environment
 from estimators.api import ESTIMATORS, run_estimators
-from estimators.events import SENSOR_NAMES
+from estimators.inputs.records import SENSOR_NAMES
 from ingest.ulog_reader import load_flight_log
 
 REAL_LOGS = ("sample.ulg", "sample_appended_multiple.ulg", "sample_log_small.ulg",

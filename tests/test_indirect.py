@@ -17,12 +17,12 @@ import math
 import numpy as np
 import pytest
 
-from estimators import eskf_model as m
-from estimators import events
-from estimators import full_state_direct as fsd
-from estimators import full_state_indirect as fsi
 from estimators.config import EstimatorConfig
+from estimators.direct import kernel as direct_kernel
 from estimators.evaluation import PAPER_TABLE_2, config_for_simulation, rms_errors
+from estimators.indirect import kernel as fsi
+from estimators.indirect import model as m
+from estimators.inputs import build, records
 from ingest import load_sun_device, with_sun
 from ingest.frames import euler_to_matrix, quat_to_matrix
 from ingest.ulog_reader import load_flight_log
@@ -33,7 +33,7 @@ CONFIG = EstimatorConfig()
 
 
 def _run(log, config=CONFIG, **kwargs):
-    return fsi.run(log, events.build_replay_inputs(log, config), config, **kwargs)
+    return fsi.run(log, build.build_replay_inputs(log, config), config, **kwargs)
 
 
 def _attitude_rms_deg(log, states, after_s):
@@ -70,7 +70,7 @@ def test_error_state_table_matches_the_model_layout():
 def test_initial_attitude_covariance_is_the_euler_sigmas_mapped_to_body_error():
     """P0's attitude block is W diag(sigma_Euler^2) W^T: mapped back with S = W^-1 it is the Euler diagonal."""
     log = synthetic_flight(5.0, seed=2)
-    inputs = events.build_replay_inputs(log, CONFIG)
+    inputs = build.build_replay_inputs(log, CONFIG)
     k = fsi.kernel_inputs(inputs, CONFIG, log)
     sel = list(k["sel"])
     th = [sel.index(m.E_TH + i) for i in range(3)]
@@ -88,7 +88,7 @@ def test_initial_attitude_covariance_is_the_euler_sigmas_mapped_to_body_error():
 def test_cross_axis_states_follow_the_flag():
     log = synthetic_flight(5.0, seed=4)
     off = dataclasses.replace(CONFIG, accel_cross_axis_states=False)
-    states = fsi.run(log, events.build_replay_inputs(log, off), off).report.details["states"]
+    states = fsi.run(log, build.build_replay_inputs(log, off), off).report.details["states"]
     assert "dkzx" not in states and "dkzy" not in states and "dbax" in states
 
 
@@ -104,7 +104,7 @@ def test_active_error_states_follow_the_sensor_plan(kwargs, absent):
     full = [s.name for s in fsi.error_state_table(CONFIG, absolute_yaw=True)]
     assert states == [n for n in full if n not in absent]
     # the direct filter decides the same blocks from the same plan, and reports the same
-    direct = fsd.run(log, events.build_replay_inputs(log, CONFIG), CONFIG)
+    direct = direct_kernel.run(log, build.build_replay_inputs(log, CONFIG), CONFIG)
     for block_direct, block_indirect in (("bax", "dbax"), ("wn", "dwn"), ("bmx", "dbmx"), ("bb", "dbb")):
         assert (block_direct in direct.report.details["states"]) == (block_indirect in states)
     assert run.report.used == direct.report.used and run.report.skipped == direct.report.skipped
@@ -149,9 +149,9 @@ def test_agrees_with_the_direct_filter(minute_flight):
     """Two independent implementations of the same estimation problem (Euler angles and body velocity, RK4,
     additive update vs quaternion, NED velocity, exact exponential map, multiplicative injection): after 5 s of
     convergence they agree to a small fraction of their own uncertainty."""
-    inputs = events.build_replay_inputs(minute_flight, CONFIG)
+    inputs = build.build_replay_inputs(minute_flight, CONFIG)
     indirect = fsi.run(minute_flight, inputs, CONFIG).states
-    direct = fsd.run(minute_flight, inputs, CONFIG).states
+    direct = direct_kernel.run(minute_flight, inputs, CONFIG).states
     t = indirect["time_s"].to_numpy()
     keep = t >= t[0] + 5.0
     for column, tol in (("roll_deg", 0.1), ("pitch_deg", 0.1), ("yaw_deg", 0.2), ("vn_m_s", 0.01),
@@ -166,11 +166,11 @@ def test_agrees_with_the_direct_filter(minute_flight):
 
 @pytest.mark.parametrize(("velocity_mode", "inject"), [("ned", "group"), ("paper", "scalar")])
 def test_numba_kernel_equals_numpy_twin(velocity_mode, inject):
-    """The compiled kernel and the matrix-form NumPy reference (:mod:`estimators.eskf_numpy`) on 10 s of flight
+    """The compiled kernel and the matrix-form NumPy reference (:mod:`estimators.indirect.reference`) on 10 s of flight
     with every sensor: same trajectory, innovations and final state to 1e-9."""
     log = synthetic_flight(10.0, seed=3)
     config = EstimatorConfig(gps_velocity_mode=velocity_mode)
-    inputs = events.build_replay_inputs(log, config)
+    inputs = build.build_replay_inputs(log, config)
     fast = fsi.run(log, inputs, config, inject=inject, backend="numba")
     slow = fsi.run(log, inputs, config, inject=inject, backend="numpy")
     numeric = [c for c in fast.states.columns if c != "time_s"]
@@ -191,7 +191,7 @@ def test_numba_kernel_equals_numpy_twin(velocity_mode, inject):
 def test_group_and_scalar_injection_agree(minute_flight):
     """Injecting after each sensor group (linearised innovations within the group, eq 49 corrected) or after
     every scalar (re-linearised) differ only to second order."""
-    inputs = events.build_replay_inputs(minute_flight, CONFIG)
+    inputs = build.build_replay_inputs(minute_flight, CONFIG)
     group = fsi.run(minute_flight, inputs, CONFIG)
     scalar = fsi.run(minute_flight, inputs, CONFIG, inject="scalar")
     for column, tol in (("roll_deg", 0.01), ("pitch_deg", 0.01), ("yaw_deg", 0.02), ("vn_m_s", 1e-3),
@@ -217,10 +217,10 @@ def test_degraded_modes_run_without_nan():
 
 def test_divergence_is_reset_never_nan():
     log = synthetic_flight(10.0, seed=3)
-    inputs = events.build_replay_inputs(log, CONFIG)
+    inputs = build.build_replay_inputs(log, CONFIG)
     gyro = inputs.imu.gyro_rad_s.copy()
     gyro[1200] = 1e300  # an absurd sample makes the nominal state overflow
-    broken = events.ReplayInputs(**{**inputs.__dict__, "imu": events.ImuSamples(
+    broken = records.ReplayInputs(**{**inputs.__dict__, "imu": records.ImuSamples(
         **{**inputs.imu.__dict__, "gyro_rad_s": gyro})})
     run = fsi.run(log, broken, CONFIG)
     assert run.report.resets >= 1 and any("reset" in w for w in run.report.warnings)
@@ -299,7 +299,7 @@ def paper_mission_with_sun():
     log = with_sun(log, SAMPLE_LOGS_DIR / "paper_sun.csv", device=device)
     sidecar = json.loads((SAMPLE_LOGS_DIR / "paper_sim.json").read_text())
     config = config_for_simulation(sidecar)
-    run = fsi.run(log, events.build_replay_inputs(log, config, heading="mag+sun"), config)
+    run = fsi.run(log, build.build_replay_inputs(log, config, heading="mag+sun"), config)
     return run, rms_errors(run.states, log, after_s=60.0).iloc[0]
 
 
@@ -321,7 +321,7 @@ def test_paper_mission_nis_per_channel(paper_mission):
     allowance, not a sensor noise)."""
     run, _, _ = paper_mission
     diagnostics = run.diagnostics
-    measured = diagnostics[~diagnostics["sensor"].isin([events.SENSOR_NAMES[k] for k in events.PSEUDO_KINDS])]
+    measured = diagnostics[~diagnostics["sensor"].isin([records.SENSOR_NAMES[k] for k in records.PSEUDO_KINDS])]
     nis = measured.groupby(["sensor", "component"], observed=True)["nis"].mean()
     print("mean NIS per channel:", nis.round(2).to_dict())
     assert set(nis.index.get_level_values("sensor")) == {"baro", "airspeed", "gps_pos", "gps_vel", "mag"}

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from estimators import ekf_core
-from estimators import eskf_model as m
+from estimators.core import linalg, rotations
+from estimators.indirect import model as m
 from ingest.frames import quat_to_matrix
 
 GRAVITY_M_S2 = 9.80665
@@ -89,20 +89,20 @@ def rng(request) -> np.random.Generator:
 
 def test_rotation_helpers_match_scipy(rng):
     rotvec = rng.normal(0.0, 1.0, 3)
-    q = np.array(m.quat_exp(*rotvec))
+    q = np.array(rotations.quat_exp(*rotvec))
     expected = Rotation.from_rotvec(rotvec)
     np.testing.assert_allclose(quat_to_matrix(q), expected.as_matrix(), atol=1e-14)
     q2 = np.roll(Rotation.random(random_state=rng).as_quat(), 1)
-    product = np.array(m.quat_multiply(*q2, *q))
+    product = np.array(rotations.quat_multiply(*q2, *q))
     expected_product = Rotation.from_quat(np.roll(q2, -1)) * expected
     np.testing.assert_allclose(quat_to_matrix(product), expected_product.as_matrix(), atol=1e-14)
     v = rng.normal(size=3)
     r2 = Rotation.from_quat(np.roll(q2, -1))
-    np.testing.assert_allclose(m.rotate(*q2, *v), r2.apply(v), atol=1e-14)
-    np.testing.assert_allclose(m.rotate(q2[0], *-q2[1:], *v), r2.inv().apply(v), atol=1e-14)
+    np.testing.assert_allclose(rotations.rotate(*q2, *v), r2.apply(v), atol=1e-14)
+    np.testing.assert_allclose(rotations.rotate(q2[0], *-q2[1:], *v), r2.inv().apply(v), atol=1e-14)
     # Small-angle branch continuous with the closed form.
     tiny = np.array([3e-7, -2e-7, 1e-7])
-    np.testing.assert_allclose(quat_to_matrix(np.array(m.quat_exp(*tiny))), Rotation.from_rotvec(tiny).as_matrix(),
+    np.testing.assert_allclose(quat_to_matrix(np.array(rotations.quat_exp(*tiny))), Rotation.from_rotvec(tiny).as_matrix(),
                                atol=1e-15)
 
 
@@ -111,7 +111,7 @@ def test_right_jacobian(rng):
         d = rng.normal(0.0, 1.0, 3) * 1e-7
         lhs = Rotation.from_rotvec(rotvec + d)
         J = np.empty((3, 3))
-        m.right_jacobian_into(*rotvec, J)
+        rotations.right_jacobian_into(*rotvec, J)
         rhs = Rotation.from_rotvec(rotvec) * Rotation.from_rotvec(J @ d)
         np.testing.assert_allclose((lhs.inv() * rhs).as_rotvec(), 0.0, atol=1e-13)
 
@@ -206,12 +206,12 @@ def test_covariance_propagation_is_f_p_ft_plus_q(rng, drop):
     expected = Fs @ P @ Fs.T + Q[np.ix_(sel, sel)]
     values, cols = np.empty((m.N_DYNAMIC, len(sel))), np.empty((m.N_DYNAMIC, len(sel)), dtype=np.int64)
     counts = np.empty(m.N_DYNAMIC, dtype=np.int64)
-    ekf_core.sparse_rows(F, sel, values, cols, counts)
+    linalg.sparse_rows(F, sel, values, cols, counts)
     for i in range(m.N_DYNAMIC):
         nonzero = np.flatnonzero(F[i, sel])
         np.testing.assert_array_equal(cols[i, :counts[i]], nonzero)
         np.testing.assert_array_equal(values[i, :counts[i]], F[i, sel[nonzero]])
-    ekf_core.propagate_sparse(P, values, cols, counts, np.empty_like(P))
+    linalg.propagate_sparse(P, values, cols, counts, np.empty_like(P))
     m.add_process_noise(P, Q_dyn, walk_psd[sel], dt)
     np.testing.assert_allclose(P, expected, rtol=1e-12, atol=1e-12)
     np.testing.assert_array_equal(P, P.T)

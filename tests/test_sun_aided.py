@@ -28,13 +28,15 @@ import pytest
 from calib.bias import GravityReference
 from calib.calibration import calibrate
 from calib.segments import user_segment
-from estimators import eskf_model, events, three_stage_models
-from estimators import full_state_direct as fsd
-from estimators import sun_vector as sv
 from estimators.api import DEFAULT_ESTIMATORS, estimator_function, run_estimators
 from estimators.config import EstimatorConfig, config_from_calibration
+from estimators.direct import kernel as direct_kernel
 from estimators.environment import local_gravity_m_s2
 from estimators.evaluation import PAPER_TABLE_2, config_for_simulation, rms_errors, truth_at
+from estimators.indirect import model as m
+from estimators.inputs import build, records
+from estimators.sun import measurement as sun_measurement_model
+from estimators.three_stage import model as three_stage_models
 from ingest import attach_sun, load_sun_device, with_sun
 from ingest.frames import euler_to_matrix, euler_to_quat, quat_to_matrix
 from ingest.sun_device import SunDevice
@@ -124,7 +126,7 @@ def test_sun_only_heading_converges_from_a_wrong_initial_yaw(mission, estimator)
     (every epoch) once flying, from 60 s on."""
     log, sidecar = mission
     config = config_for_simulation(sidecar)
-    inputs = events.build_replay_inputs(log, config, heading="sun")
+    inputs = build.build_replay_inputs(log, config, heading="sun")
     offset = math.radians(30.0)
     wrong = dataclasses.replace(inputs.alignment, yaw_rad=inputs.alignment.yaw_rad + offset)
     run = estimator_function(estimator)(log, dataclasses.replace(inputs, alignment=wrong), config)
@@ -233,7 +235,7 @@ def _check_basis(basis, h):
 
 
 def test_direct_filter_sun_update():
-    """Euler form: H_Theta = [h]x W (:func:`estimators.sun_vector.sun_jacobian_euler`), projected on the kernel's
+    """Euler form: H_Theta = [h]x W (:func:`estimators.sun.measurement.sun_jacobian_euler`), projected on the kernel's
     tangent basis; no other state enters."""
     layout = np.array([12, 15, 17, 20])
     n = 21
@@ -246,49 +248,49 @@ def test_direct_filter_sun_update():
         values[3:6] = _sun(rng)
 
         def h_of(xx, values=values):
-            return np.array([fsd.measurement(xx, events.SUN, c, values, np.zeros(3), layout, *scratch(), np.empty(n))
+            return np.array([direct_kernel.measurement(xx, records.SUN, c, values, np.zeros(3), layout, *scratch(), np.empty(n))
                              for c in range(3)])
 
         H3 = np.empty((3, n))
         for c in range(3):
-            fsd.measurement(x, events.SUN, c, values, np.zeros(3), layout, *scratch(), H3[c])
+            direct_kernel.measurement(x, records.SUN, c, values, np.zeros(3), layout, *scratch(), H3[c])
         r_nb = euler_to_matrix(roll, pitch, yaw)
         np.testing.assert_allclose(h_of(x), r_nb.T @ values[3:6], atol=1e-12)
-        np.testing.assert_allclose(H3[:, 6:9], sv.sun_jacobian_euler(r_nb, values[3:6]), atol=1e-12)
+        np.testing.assert_allclose(H3[:, 6:9], sun_measurement_model.sun_jacobian_euler(r_nb, values[3:6]), atol=1e-12)
         assert not np.any(np.delete(H3, [6, 7, 8], axis=1))
-        basis = sv.sun_tangent_basis(h_of(x))
+        basis = sun_measurement_model.sun_tangent_basis(h_of(x))
         _check_basis(basis, h_of(x))
         np.testing.assert_allclose(basis.T @ H3, _projected_fd(h_of, x, basis), atol=1e-7)
 
 
 def test_indirect_filter_sun_update():
-    """Error-angle form: H_dtheta = [h]x (:func:`estimators.sun_vector.sun_jacobian_error_angle`) against finite
+    """Error-angle form: H_dtheta = [h]x (:func:`estimators.sun.measurement.sun_jacobian_error_angle`) against finite
     differences of the right perturbation ``q (x) Exp(dtheta)``, projected on the tangent basis."""
     rng = np.random.default_rng(62)
     for roll, pitch, yaw in _random_attitudes(rng):
-        x = np.zeros(eskf_model.NX)
-        x[eskf_model.X_Q:eskf_model.X_Q + 4] = euler_to_quat(roll, pitch, yaw)
+        x = np.zeros(m.NX)
+        x[m.X_Q:m.X_Q + 4] = euler_to_quat(roll, pitch, yaw)
         sun = _sun(rng)
 
         def h_at(xx, sun=sun):
-            H = np.empty(eskf_model.NE)
-            return np.array([eskf_model.h_body_vector(xx, sun, c, False, H) for c in range(3)])
+            H = np.empty(m.NE)
+            return np.array([m.h_body_vector(xx, sun, c, False, H) for c in range(3)])
 
-        H3 = np.empty((3, eskf_model.NE))
+        H3 = np.empty((3, m.NE))
         for c in range(3):
-            eskf_model.h_body_vector(x, sun, c, False, H3[c])
-        r_nb = quat_to_matrix(x[eskf_model.X_Q:eskf_model.X_Q + 4])
-        th = slice(eskf_model.E_TH, eskf_model.E_TH + 3)
-        np.testing.assert_allclose(H3[:, th], sv.sun_jacobian_error_angle(r_nb, sun), atol=1e-12)
-        assert not np.any(np.delete(H3, np.arange(eskf_model.NE)[th], axis=1))
-        basis = sv.sun_tangent_basis(h_at(x))
+            m.h_body_vector(x, sun, c, False, H3[c])
+        r_nb = quat_to_matrix(x[m.X_Q:m.X_Q + 4])
+        th = slice(m.E_TH, m.E_TH + 3)
+        np.testing.assert_allclose(H3[:, th], sun_measurement_model.sun_jacobian_error_angle(r_nb, sun), atol=1e-12)
+        assert not np.any(np.delete(H3, np.arange(m.NE)[th], axis=1))
+        basis = sun_measurement_model.sun_tangent_basis(h_at(x))
         _check_basis(basis, h_at(x))
 
         def h_of_error(dtheta, x=x, th=th, h_at=h_at):
             xx = x.copy()
-            dx = np.zeros(eskf_model.NE)
+            dx = np.zeros(m.NE)
             dx[th] = dtheta
-            eskf_model.inject(xx, dx, np.eye(eskf_model.NE))
+            m.inject(xx, dx, np.eye(m.NE))
             return h_at(xx)
 
         np.testing.assert_allclose(basis.T @ H3[:, th], _projected_fd(h_of_error, np.zeros(3), basis), atol=1e-7)
@@ -300,10 +302,10 @@ def test_three_stage_sun_update():
     for roll, pitch, yaw in _random_attitudes(rng):
         sun = _sun(rng)
         h, c, j_tilt = three_stage_models.stage2_h(yaw, roll, pitch, sun)
-        jac = sv.sun_jacobian_euler(euler_to_matrix(roll, pitch, yaw), sun)
+        jac = sun_measurement_model.sun_jacobian_euler(euler_to_matrix(roll, pitch, yaw), sun)
         np.testing.assert_allclose(c[:, 0], jac[:, 2], atol=1e-12)
         np.testing.assert_allclose(j_tilt, jac[:, :2], atol=1e-12)
-        basis = sv.sun_tangent_basis(h)
+        basis = sun_measurement_model.sun_tangent_basis(h)
         _check_basis(basis, h)
         fd = _projected_fd(lambda a, sun=sun: three_stage_models.stage2_h(a[2], a[0], a[1], sun)[0],
                            np.array([roll, pitch, yaw]), basis)

@@ -73,7 +73,7 @@ def test_interpolated_ephemeris_at_a_fixed_observer():
     on the 1 Hz grid, interpolated in between well inside the 0.01 deg budget; NaN without the log's UTC time."""
     from dataclasses import replace
 
-    from estimators.sun_prediction import sun_ned_at
+    from estimators.sun.prediction import sun_ned_at
     from ingest.flightlog import FlightLog
     from tests.estimators_synthetic import ALT0, LAT0, LON0, synthetic_flight
 

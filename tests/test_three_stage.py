@@ -14,12 +14,14 @@ import pandas as pd
 import pytest
 from estimators_synthetic import synthetic_flight
 
-from estimators import events, state_table, three_stage
-from estimators import three_stage_models as m
 from estimators.api import run_estimators
 from estimators.config import EstimatorConfig
+from estimators.core import state_table
+from estimators.core.results import STATE_COLUMNS
 from estimators.evaluation import PAPER_TABLE_2, config_for_simulation, rms_errors
-from estimators.results import STATE_COLUMNS
+from estimators.inputs import alignment, build, records
+from estimators.three_stage import kernel as three_stage
+from estimators.three_stage import model as m
 from ingest import load_flight_log
 from ingest.frames import euler_to_matrix
 from ingest.sun_log import with_sun
@@ -324,7 +326,7 @@ def test_state_tables_build_positive_definite_matrices(table):
 
 def run_three_stage(log, config=None, options=None, **inputs_kwargs):
     config = EstimatorConfig() if config is None else config
-    inputs = events.build_replay_inputs(log, config, **inputs_kwargs)
+    inputs = build.build_replay_inputs(log, config, **inputs_kwargs)
     return three_stage.run(log, inputs, config, options=options)
 
 
@@ -337,12 +339,13 @@ def short_flight():
 TWIN_SCRIPT = """
 import sys
 from estimators_synthetic import synthetic_flight
-from estimators import events, three_stage
+from estimators.inputs import build
+from estimators.three_stage import kernel as three_stage
 from estimators.api import run_estimators
 from estimators.config import EstimatorConfig
 log = synthetic_flight(10.0, seed=3, mav_type={mav_type}, with_airspeed={with_airspeed})
 config = EstimatorConfig()
-run = three_stage.run(log, events.build_replay_inputs(log, config), config)
+run = three_stage.run(log, build.build_replay_inputs(log, config), config)
 run.states.to_pickle(sys.argv[1])
 run.diagnostics.to_pickle(sys.argv[2])
 """
@@ -425,10 +428,10 @@ def test_degraded_modes_run_without_nan():
 @pytest.mark.filterwarnings("ignore:overflow encountered:RuntimeWarning", "ignore:invalid value:RuntimeWarning")
 def test_divergence_is_reset_never_nan(short_flight):
     config = EstimatorConfig()
-    inputs = events.build_replay_inputs(short_flight, config)
+    inputs = build.build_replay_inputs(short_flight, config)
     gyro = inputs.imu.gyro_rad_s.copy()
     gyro[1200] = 1e300  # an absurd sample makes the attitude overflow
-    broken = events.ReplayInputs(**{**inputs.__dict__, "imu": events.ImuSamples(
+    broken = records.ReplayInputs(**{**inputs.__dict__, "imu": records.ImuSamples(
         **{**inputs.imu.__dict__, "gyro_rad_s": gyro})})
     run = three_stage.run(short_flight, broken, config)
     assert run.report.resets >= 1
@@ -476,7 +479,7 @@ def paper_mission():
     sidecar = json.loads((SAMPLE_LOGS_DIR / "paper_sim.json").read_text())
     config = config_for_simulation(sidecar)
     result = run_estimators(log, config=config)
-    inputs = events.build_replay_inputs(log, config)
+    inputs = build.build_replay_inputs(log, config)
     return log, sidecar, inputs, result, rms_errors(result.states, log, after_s=60.0)
 
 
@@ -487,7 +490,7 @@ def levelling_error_deg(log, inputs):
     imu, truth = log["imu"], log["truth_attitude"]
     still = (imu.index >= start) & (imu.index <= end)
     f_b = imu.loc[still, ["accel_x_m_s2", "accel_y_m_s2", "accel_z_m_s2"]].to_numpy().mean(axis=0)
-    roll, pitch = np.degrees(events.tilt_from_specific_force(f_b))
+    roll, pitch = np.degrees(alignment.tilt_from_specific_force(f_b))
     at_rest = (truth.index >= start) & (truth.index <= end)
     return abs(roll - truth.loc[at_rest, "roll_deg"].mean()), abs(pitch - truth.loc[at_rest, "pitch_deg"].mean())
 

@@ -20,10 +20,10 @@ from calib.px4_params import DEFAULT_PREDICT_PERIOD_S, px4_parameters, write_px4
 from calib.segments import user_segment
 from calib.tables import table4
 from calib.tau import DEFAULT_TAU, TAU_METHODS, Innovations, TauSelection, choose_tau, user_tau
-from estimators import three_stage
 from estimators.config import config_from_calibration
 from estimators.environment import local_gravity_m_s2
-from estimators.events import build_replay_inputs
+from estimators.inputs.build import build_replay_inputs
+from estimators.three_stage import kernel as three_stage
 from ingest.errors import InputError
 from ingest.flightlog import FlightLog
 from ingest.ulog_reader import load_flight_log

@@ -15,7 +15,7 @@ import pyarrow.csv
 
 from estimators.api import DEFAULT_ESTIMATORS, ESTIMATORS, ReplayResult, parse_estimator_names, run_estimators
 from estimators.config import EstimatorConfig, config_from_calibration
-from estimators.events import HEADING_SOURCES
+from estimators.inputs.records import HEADING_SOURCES
 from ingest.errors import InputError
 from ingest.sun_log import load_sun_device, with_sun
 from ingest.ulog_reader import load_flight_log

@@ -10,7 +10,7 @@ import numpy as np
 import pandas as pd
 
 from app.commands.replay import _checked_path, write_table
-from estimators.sun_prediction import ATTITUDE_STREAMS, sun_vector_table, usable_sun
+from estimators.sun.prediction import ATTITUDE_STREAMS, sun_vector_table, usable_sun
 from ingest.sun_log import load_sun_device, with_sun
 from ingest.ulog_reader import load_flight_log
 

@@ -5,7 +5,7 @@ import streamlit as st
 
 from app import adapters, comparison, figures, runs, session, tables
 from estimators.api import DEFAULT_ESTIMATORS, ESTIMATORS
-from estimators.events import HEADING_SOURCES
+from estimators.inputs.records import HEADING_SOURCES
 
 RUN_KEY = "est_run"
 HEADING_LABELS = {"mag": "magnetometer", "sun": "sun vector", "mag+sun": "both"}

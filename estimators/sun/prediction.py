@@ -8,7 +8,7 @@ into the body frame by a reference attitude,
 
 where ``R_nb`` comes from the autopilot's own attitude (``onboard_attitude``, PX4 ``vehicle_attitude``) or from
 the ground truth of simulated / SITL logs (``truth_attitude``). The reference's up vector ``R_nb^T (0, 0, -1)``
-also feeds the solver's sky-light model (:func:`estimators.sun_vector.solve_sun_log`, ``up_body``).
+also feeds the solver's sky-light model (:func:`estimators.sun.solver.solve_sun_log`, ``up_body``).
 
 :func:`sun_vector_table` is the library side of ``solarnav sun``: one row per photocell sample with the solved
 vector, the solver's bookkeeping and, per available reference, the predicted vector and its angle to the solved
@@ -21,7 +21,7 @@ import numpy as np
 import pandas as pd
 
 from estimators.environment import MIN_SUN_ELEVATION_DEG, sun_direction_ned
-from estimators.sun_vector import SunSolverConfig, solve_sun_log
+from estimators.sun.solver import SunSolverConfig, solve_sun_log
 from ingest.errors import InputError
 from ingest.flightlog import FlightLog
 from ingest.frames import quat_to_matrix
@@ -35,7 +35,7 @@ UP_VECTOR_PREFERENCE = ("onboard", "truth")
 EPHEMERIS_STEP_S = 1.0
 #: GPS rows used for the observer position: 3D fix or better.
 MIN_GPS_FIX_TYPE = 3
-#: Columns copied from the solver (:func:`estimators.sun_vector.solve_sun_log`), in output order.
+#: Columns copied from the solver (:func:`estimators.sun.solver.solve_sun_log`), in output order.
 SOLVER_COLUMNS = ("sun_x", "sun_y", "sun_z", "cells_used", "faulty_cells", "residual", "sigma_rad", "k_a",
                   "sky_a", "status")
 
@@ -158,7 +158,7 @@ def sun_vector_table(flight_log: FlightLog, *, config: SunSolverConfig | None = 
         * ``time_s`` [s]; ``sun_x, sun_y, sun_z``: solved unit vector towards the sun, body FRD [-], NaN without
           a solution; ``cells_used``, ``faulty_cells`` (bitmasks, bit j = cell j+1), ``residual`` [-],
           ``sigma_rad`` [rad], ``k_a``, ``sky_a`` [A], ``status``: as
-          :func:`estimators.sun_vector.solve_sun_log`;
+          :func:`estimators.sun.solver.solve_sun_log`;
         * ``sun_elevation_deg``: apparent sun elevation from the ephemeris [deg];
         * per reference ``r`` in ``onboard``, ``truth``: ``pred_r_x, pred_r_y, pred_r_z`` (predicted unit
           vector, body FRD [-]) and ``angle_r_deg`` (angle solved vs predicted [deg]); NaN where the log has no

@@ -31,12 +31,23 @@ Each IMU sample is held constant over its interval ``dt`` (zero-order hold).
 Every function here is a small ``numba`` kernel; finite differences appear only in the tests.
 """
 
+
 from __future__ import annotations
 
 import math
 
 import numpy as np
 from numba import njit
+
+from estimators.core.rotations import (
+    dcm_into,
+    matmul3_into,
+    quat_exp,
+    quat_multiply,
+    right_jacobian_into,
+    rotate,
+    skew_into,
+)
 
 # Nominal state layout.
 X_P = 0
@@ -50,7 +61,7 @@ X_BB = 21
 X_KZ = 22
 NX = 24
 
-# Error state layout (see ``estimators.full_state_indirect.ERROR_STATES`` for units and sigmas).
+# Error state layout (see ``estimators.indirect.kernel.ERROR_STATES`` for units and sigmas).
 E_P = 0
 E_V = 3
 E_TH = 6
@@ -63,106 +74,6 @@ E_KZ = 21
 NE = 23
 #: Error states with dynamics (p, v, theta): the only rows of the transition that differ from the identity.
 N_DYNAMIC = E_BG
-
-_SMALL_ANGLE_RAD = 1e-6
-
-# ----------------------------------------------------------------------------------------------------------------
-# Rotation helpers (Hamilton quaternions, scalar first). Scalar in, scalars out: the time loop calls them per
-# sample, and a 3-vector or 3 x 3 array per call would cost a heap allocation each.
-# ----------------------------------------------------------------------------------------------------------------
-@njit(cache=True)
-def _dcm_into(w, x, y, z, out):
-    """Rotation matrix R(q) of the unit quaternion (w, x, y, z) (maps body vectors into NED for the attitude
-    quaternion) written into ``out`` (3, 3)."""
-    out[0, 0] = 1.0 - 2.0 * (y * y + z * z)
-    out[0, 1] = 2.0 * (x * y - w * z)
-    out[0, 2] = 2.0 * (x * z + w * y)
-    out[1, 0] = 2.0 * (x * y + w * z)
-    out[1, 1] = 1.0 - 2.0 * (x * x + z * z)
-    out[1, 2] = 2.0 * (y * z - w * x)
-    out[2, 0] = 2.0 * (x * z - w * y)
-    out[2, 1] = 2.0 * (y * z + w * x)
-    out[2, 2] = 1.0 - 2.0 * (x * x + y * y)
-
-
-@njit(cache=True)
-def rotate(w, x, y, z, vx, vy, vz):
-    """R(q) v for the unit quaternion q = (w, x, y, z): ``v + 2 w (u x v) + 2 u x (u x v)`` with ``u = (x, y, z)``
-    (pass the conjugate ``(w, -x, -y, -z)`` for ``R^T v``)."""
-    cx = y * vz - z * vy
-    cy = z * vx - x * vz
-    cz = x * vy - y * vx
-    return (vx + 2.0 * (w * cx + y * cz - z * cy),
-            vy + 2.0 * (w * cy + z * cx - x * cz),
-            vz + 2.0 * (w * cz + x * cy - y * cx))
-
-
-@njit(cache=True)
-def quat_exp(rx, ry, rz):
-    """Unit quaternion Exp(phi) = (cos(|phi|/2), sin(|phi|/2) phi/|phi|) of a rotation vector [rad], as (w, x, y, z)."""
-    angle = math.sqrt(rx * rx + ry * ry + rz * rz)
-    if angle < _SMALL_ANGLE_RAD:
-        w = 1.0 - angle * angle / 8.0
-        scale = 0.5 - angle * angle / 48.0
-    else:
-        w = math.cos(0.5 * angle)
-        scale = math.sin(0.5 * angle) / angle
-    return w, scale * rx, scale * ry, scale * rz
-
-
-@njit(cache=True)
-def quat_multiply(aw, ax, ay, az, bw, bx, by, bz):
-    """Hamilton product a (x) b of two quaternions given as scalars, as (w, x, y, z)."""
-    return (aw * bw - ax * bx - ay * by - az * bz,
-            aw * bx + ax * bw + ay * bz - az * by,
-            aw * by - ax * bz + ay * bw + az * bx,
-            aw * bz + ax * by - ay * bx + az * bw)
-
-
-@njit(cache=True)
-def right_jacobian_into(rx, ry, rz, out):
-    """Right Jacobian of SO(3) at ``phi = (rx, ry, rz)`` [rad] into ``out`` (3, 3):
-    ``Exp(phi + d) ~ Exp(phi) Exp(J_r d)``, ``J_r = I - c1 [phi]x + c2 [phi]x^2`` with ``c1 = (1 - cos a)/a^2``,
-    ``c2 = (a - sin a)/a^3``, ``a = |phi|`` (``[phi]x^2 = phi phi^T - a^2 I``)."""
-    angle2 = rx * rx + ry * ry + rz * rz
-    angle = math.sqrt(angle2)
-    if angle < 1e-4:
-        c1 = 0.5 - angle2 / 24.0
-        c2 = 1.0 / 6.0 - angle2 / 120.0
-    else:
-        c1 = (1.0 - math.cos(angle)) / angle2
-        c2 = (angle - math.sin(angle)) / (angle2 * angle)
-    out[0, 0] = 1.0 + c2 * (rx * rx - angle2)
-    out[1, 1] = 1.0 + c2 * (ry * ry - angle2)
-    out[2, 2] = 1.0 + c2 * (rz * rz - angle2)
-    out[0, 1] = c1 * rz + c2 * rx * ry
-    out[1, 0] = -c1 * rz + c2 * rx * ry
-    out[0, 2] = -c1 * ry + c2 * rx * rz
-    out[2, 0] = c1 * ry + c2 * rx * rz
-    out[1, 2] = c1 * rx + c2 * ry * rz
-    out[2, 1] = -c1 * rx + c2 * ry * rz
-
-
-@njit(cache=True)
-def _matmul3_into(A, B, out):
-    """out = A B for (3, 3) matrices (plain loops: no BLAS call overhead for 3 x 3)."""
-    for i in range(3):
-        for j in range(3):
-            out[i, j] = A[i, 0] * B[0, j] + A[i, 1] * B[1, j] + A[i, 2] * B[2, j]
-
-
-@njit(cache=True)
-def _skew_into(vx, vy, vz, out):
-    """[v]x into ``out`` (3, 3)."""
-    out[0, 0] = 0.0
-    out[0, 1] = -vz
-    out[0, 2] = vy
-    out[1, 0] = vz
-    out[1, 1] = 0.0
-    out[1, 2] = -vx
-    out[2, 0] = -vy
-    out[2, 1] = vx
-    out[2, 2] = 0.0
 
 
 @njit(cache=True)
@@ -250,15 +161,15 @@ def transition(x, gyro_rad_s, accel_m_s2, dt_s, F, work):
                                                                   work[5], work[6], work[7])
     qw, qx, qy, qz = x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3]
     hw, hx, hy, hz = quat_exp(wx * half, wy * half, wz * half)
-    _dcm_into(qw, qx, qy, qz, R)
-    _dcm_into(*quat_multiply(qw, qx, qy, qz, hw, hx, hy, hz), R_mid)
-    _dcm_into(*quat_multiply(hw, hx, hy, hz, hw, hx, hy, hz), R_full)  # Exp(omega dt) = Exp(omega dt/2)^2
+    dcm_into(qw, qx, qy, qz, R)
+    dcm_into(*quat_multiply(qw, qx, qy, qz, hw, hx, hy, hz), R_mid)
+    dcm_into(*quat_multiply(hw, hx, hy, hz, hw, hx, hy, hz), R_full)  # Exp(omega dt) = Exp(omega dt/2)^2
     right_jacobian_into(wx * dt_s, wy * dt_s, wz * dt_s, J_full)
     right_jacobian_into(wx * half, wy * half, wz * half, J_half)
     yx, yy, yz = rotate(hw, hx, hy, hz, fx, fy, fz)  # y = R_half f; a_theta = -R [y]x, row i = -(R_i x y)
-    _skew_into(fx, fy, fz, f_cross)
-    _matmul3_into(f_cross, J_half, f_cross_J)
-    _matmul3_into(R_mid, f_cross_J, a_bg)  # a_bg = R_mid [f]x J_r(omega dt/2) (times dt/2 below)
+    skew_into(fx, fy, fz, f_cross)
+    matmul3_into(f_cross, J_half, f_cross_J)
+    matmul3_into(R_mid, f_cross_J, a_bg)  # a_bg = R_mid [f]x J_r(omega dt/2) (times dt/2 below)
     half_dt2 = 0.5 * dt_s * dt_s
     for i in range(3):
         # a_theta row i = -(R_i x y) (R_i: row i of R)
@@ -336,7 +247,7 @@ def process_noise(F, gyro_psd, accel_psd, dt_s, Q_dyn):
 
 @njit(cache=True)
 def add_process_noise(P, Q_dyn, walk_psd, dt_s):
-    """``P += Q`` after :func:`estimators.ekf_core.propagate_sparse`: ``Q_dyn`` (N_DYNAMIC, N_DYNAMIC, symmetric,
+    """``P += Q`` after :func:`estimators.core.linalg.propagate_sparse`: ``Q_dyn`` (N_DYNAMIC, N_DYNAMIC, symmetric,
     :func:`process_noise`) on the dynamic block plus ``diag(K^2) dt`` (``walk_psd`` (n,): squared random-walk
     densities of the active error states [unit^2/s]); exactly symmetric."""
     for i in range(N_DYNAMIC):

@@ -2,8 +2,8 @@
 kernel, run by the equivalence test).
 
 The models are written in matrix form straight from the math note (section 4 blocks: ``R``, ``S``, ``W``,
-``[a]x``), independently of the scalar-unrolled numba functions of :mod:`estimators.full_state_direct`; the event
-loop mirrors :func:`estimators.full_state_direct.run_kernel` step for step (same propagation splitting, same
+``[a]x``), independently of the scalar-unrolled numba functions of :mod:`estimators.direct.kernel`; the event
+loop mirrors :func:`estimators.direct.kernel.run_kernel` step for step (same propagation splitting, same
 covariance schedule, same update order), so both must produce the same trajectory to round-off.
 """
 
@@ -13,16 +13,8 @@ import math
 
 import numpy as np
 
-from estimators.ekf_core import C_DIAG, C_GPS_RESETS, C_OUTPUTS, C_REPAIRS, C_RESETS, C_UPDATES
-from estimators.events import AIRSPEED, BARO, GPS_POS, GPS_VEL, MAG, OUTPUT, SIDESLIP, SUN, ZERO_VELOCITY
-from estimators.full_state_direct import (
-    C_FLUSHES,
-    C_PITCH_GUARD,
+from estimators.core.full_state import (
     EIG_FLOOR,
-    L_BA,
-    L_BB,
-    L_BM,
-    L_W,
     P_COV_DT,
     P_FIELD,
     P_G,
@@ -30,12 +22,13 @@ from estimators.full_state_direct import (
     P_GPS_REJECT_S,
     P_NA2,
     P_NG2,
-    P_PAPER_INDIRECT,
     P_PAPER_VEL,
     P_VMIN,
     PD_CHECK_EVERY,
-    PITCH_GUARD_RAD,
 )
+from estimators.core.recorder import C_DIAG, C_GPS_RESETS, C_OUTPUTS, C_REPAIRS, C_RESETS, C_UPDATES
+from estimators.direct.kernel import C_FLUSHES, C_PITCH_GUARD, L_BA, L_BB, L_BM, L_W, P_PAPER_INDIRECT, PITCH_GUARD_RAD
+from estimators.inputs.records import AIRSPEED, BARO, GPS_POS, GPS_VEL, MAG, OUTPUT, SIDESLIP, SUN, ZERO_VELOCITY
 
 
 def wrap(angle):
@@ -257,7 +250,7 @@ def record(diag_f, diag_i, counters, t, kind, comp, nu, s_var, nis, accepted):
 
 
 class GpsMonitor:
-    """GPS re-acquisition rule of math note 2.3 (the twin of :func:`estimators.ekf_core.gps_reset_due`): a reset
+    """GPS re-acquisition rule of math note 2.3 (the twin of :func:`estimators.core.reacquisition.gps_reset_due`): a reset
     of position and velocity when a GPS position or velocity component has been rejected continuously for
     ``reject_s``, or when GPS returns after an outage longer than ``outage_s``. The kind whose event triggers is
     reset at once, the other kind at its next event; the first position event resets the position only."""
@@ -323,7 +316,7 @@ def reset_to_gps(x, P, kind, values, variances, layout, move_wind):
 
 def run_reference(imu_t, imu_gyro, imu_accel, ev_t, ev_kind, ev_imu, ev_val, ev_var, x0, P0, layout, params,
                   gates, rw_var, min_var, max_var, out_f, out_x, out_sx, diag_f, diag_i, counters):
-    """Same signature and outputs as :func:`estimators.full_state_direct.run_kernel`."""
+    """Same signature and outputs as :func:`estimators.direct.kernel.run_kernel`."""
     x, P, x_safe = x0.copy(), P0.copy(), x0.copy()
     g, cov_dt, field = params[P_G], params[P_COV_DT], params[P_FIELD:P_FIELD + 3]
     paper_vel, paper_indirect = params[P_PAPER_VEL] > 0.5, params[P_PAPER_INDIRECT] > 0.5

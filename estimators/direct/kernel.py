@@ -34,7 +34,7 @@ logs add a zero NED-velocity pseudo-measurement (math note 7.3).
 
 Filter quantities (kernel arrays): ``x`` (n,) state, ``P`` (n, n) covariance (prior before, posterior after an
 update), ``nu`` innovation, ``S`` innovation variance, ``K = P H^T / S`` gain, ``NIS = nu^2 / S``; every scalar
-update is recorded (:mod:`estimators.ekf_core`).
+update is recorded (:mod:`estimators.core.linalg`).
 
 ``mode="paper_indirect"`` runs the paper's indirect filter literally (eqs 44-49 corrected, math note 5.1): an
 additive error state in the same coordinates, propagated with the same ``A`` (it stays zero between updates),
@@ -42,8 +42,9 @@ estimated over each sensor's group of scalar updates with ``H`` and ``h`` at the
 (reset) after the group. It equals the direct filter exactly for linear measurement models and to second order
 otherwise.
 
-``backend="numpy"`` runs :mod:`estimators.full_state_direct_numpy`, the plain-NumPy twin of the kernel.
+``backend="numpy"`` runs :mod:`estimators.direct.reference`, the plain-NumPy twin of the kernel.
 """
+
 
 from __future__ import annotations
 
@@ -54,18 +55,33 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from estimators import ekf_core, events
 from estimators.config import EstimatorConfig
-from estimators.ekf_core import (
-    C_DIAG,
-    C_GPS_RESETS,
-    C_OUTPUTS,
-    C_REPAIRS,
-    C_RESETS,
-    C_UPDATES,
-    N_SHARED_COUNTERS,
+from estimators.core import linalg, reacquisition, recorder, rotations
+from estimators.core.full_state import (
+    EIG_FLOOR,
+    MIN_VARIANCE,
+    P_COV_DT,
+    P_FIELD,
+    P_G,
+    P_GPS_OUTAGE_S,
+    P_GPS_REJECT_S,
+    P_NA2,
+    P_NG2,
+    P_PAPER_VEL,
+    P_VMIN,
+    PD_CHECK_EVERY,
+    accel_bias_degradations,
+    component_range,
+    diagnostics_capacity,
+    gates_per_kind,
+    scalar_innovation,
+    shared_params,
 )
-from estimators.events import (
+from estimators.core.recorder import C_DIAG, C_GPS_RESETS, C_OUTPUTS, C_REPAIRS, C_RESETS, C_UPDATES, N_SHARED_COUNTERS
+from estimators.core.results import EstimatorRun, diagnostics_frame, kernel_report, replay_details, states_frame
+from estimators.core.state_table import StateSpec, initial_covariance, random_walk_psd
+from estimators.inputs import records
+from estimators.inputs.records import (
     AIRSPEED,
     BARO,
     GPS_POS,
@@ -77,9 +93,7 @@ from estimators.events import (
     ZERO_VELOCITY,
     ReplayInputs,
 )
-from estimators.results import EstimatorRun, diagnostics_frame, kernel_report, replay_details, states_frame
-from estimators.state_table import StateSpec, initial_covariance, random_walk_psd
-from estimators.sun_vector import sun_tangent_basis, tangent_projection
+from estimators.sun.measurement import sun_tangent_basis, tangent_projection
 from ingest.flightlog import FlightLog
 from ingest.frames import euler_to_matrix
 
@@ -98,18 +112,6 @@ L_W = 1
 L_BM = 2
 L_BB = 3
 N_LAYOUT = 4
-
-# parameter array slots (0 .. N_SHARED_PARAMS - 1 are shared with the indirect filter, see shared_params)
-P_G = 0  # gravity [m/s^2]
-P_NG2 = 1  # gyro noise density^2 [(rad/s)^2/Hz]
-P_NA2 = 2  # accel noise density^2 [(m/s^2)^2/Hz]
-P_COV_DT = 3  # covariance propagation interval [s]
-P_FIELD = 4  # 4, 5, 6: unit earth field NED
-P_GPS_REJECT_S = 7  # a GPS component rejected this long -> position/velocity reset [s]
-P_GPS_OUTAGE_S = 8  # GPS back after an outage this long -> position/velocity reset [s]
-P_VMIN = 9  # minimum ground speed for course updates [m/s]
-P_PAPER_VEL = 10  # 1: GPS velocity as ground speed and course
-N_SHARED_PARAMS = 11
 P_PAPER_INDIRECT = 11  # 1: paper-literal indirect (group error state, reset after the group)
 N_PARAMS = 12
 
@@ -124,13 +126,6 @@ N_COUNTERS = N_SHARED_COUNTERS + 2
 
 #: Euler-angle filters stop attitude-dependent updates above this pitch (math note 7.6) [rad].
 PITCH_GUARD_RAD = math.radians(85.0)
-#: Variance floor of every state (keeps P positive definite).
-MIN_VARIANCE = 1e-12
-#: Smallest eigenvalue kept by a covariance repair.
-EIG_FLOOR = 1e-12
-#: The full positive-definiteness test (Cholesky) runs every this many covariance propagations; the variance
-#: limits every time.
-PD_CHECK_EVERY = 10
 
 
 def state_table(config: EstimatorConfig, *, accel_bias: bool, wind: bool, mag_bias: bool, baro_bias: bool,
@@ -354,7 +349,7 @@ def process_noise(x, ng2, na2, rw_var, dt, R, S, W, Qd):
 def measurement(x, kind, comp, values, field, layout, R, S, W, H):
     """Predicted scalar measurement ``h`` and its Jacobian row ``H`` (filled, length n).
 
-    ``kind``/``comp`` as in :mod:`estimators.events`; for GPS_VEL, components 3/4 are ground speed and course
+    ``kind``/``comp`` as in :mod:`estimators.inputs.build`; for GPS_VEL, components 3/4 are ground speed and course
     (paper mode); for SUN, components 0..2 are the body-frame axes (the kernel projects on the tangent plane);
     ``values`` is the event's value row (SUN: the NED sun vector in 3..5); ``field`` the unit earth field NED.
     """
@@ -476,46 +471,8 @@ def propagate_state(x, gyro, accel, dt, g, layout, R, S, W, k1, k2, k3, k4, xt):
     dynamics(xt, om0, om1, om2, f0, f1, f2, g, R, S, W, k4)
     for i in range(N_DYNAMIC):
         x[i] += dt / 6.0 * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i])
-    x[6] = ekf_core.wrap_pi(x[6])
-    x[8] = ekf_core.wrap_pi(x[8])
-
-
-@njit(cache=True)
-def component_range(kind, values, paper_vel, vmin):
-    """First and last+1 component of an event (GPS velocity in paper mode: ground speed and course, none when
-    the GPS ground speed is below ``vmin``)."""
-    if kind in (BARO, AIRSPEED, SIDESLIP):
-        return 0, 1
-    if kind == SUN:
-        return 0, 2
-    if kind == GPS_VEL and paper_vel:
-        if math.hypot(values[0], values[1]) < vmin:
-            return 3, 3
-        return 3, 5
-    return 0, 3
-
-
-@njit(cache=True)
-def measured_value(kind, comp, values, variances):
-    """Measured value ``z`` and variance ``R`` of a scalar component (paper-mode ground speed/course derived
-    from the NED velocity, eq 9 corrected: sigma_chi = sigma_V / V_g)."""
-    if kind == GPS_VEL and comp >= 3:
-        vg = math.hypot(values[0], values[1])
-        if comp == 3:
-            return vg, variances[0]
-        return math.atan2(values[1], values[0]), variances[0] / (vg * vg)
-    return values[comp], variances[comp]
-
-
-@njit(cache=True)
-def scalar_innovation(kind, comp, values, variances, h):
-    """Innovation ``nu = z - h`` (the course wrapped to [-pi, pi)) and variance ``R`` of a scalar component
-    whose prediction is ``h`` (both full-state filters)."""
-    z, r_var = measured_value(kind, comp, values, variances)
-    nu = z - h
-    if kind == GPS_VEL and comp == 4:
-        nu = ekf_core.wrap_pi(nu)
-    return nu, r_var
+    x[6] = rotations.wrap_pi(x[6])
+    x[8] = rotations.wrap_pi(x[8])
 
 
 @njit(cache=True)
@@ -524,21 +481,21 @@ def _flush_covariance(P, x_cov, acc, g, params, layout, rw_var, min_var, max_var
     """Propagate P over the accumulated interval ``acc[0]`` with the mean inputs ``acc[1:7] / acc[0]``.
 
     Scratch: ``mean_gyro`` (3,); ``columns`` = ``arange(n)`` and the sparse dynamic rows of F ``F_values``,
-    ``F_cols`` (N_DYNAMIC, n), ``F_counts`` (N_DYNAMIC,) (:func:`estimators.ekf_core.sparse_rows`)."""
+    ``F_cols`` (N_DYNAMIC, n), ``F_counts`` (N_DYNAMIC,) (:func:`estimators.core.linalg.sparse_rows`)."""
     n = P.shape[0]
     dt = acc[0]
     for i in range(3):
         mean_gyro[i] = acc[1 + i] / dt
     jacobian(x_cov, mean_gyro, g, layout, R, S, W, A)
-    ekf_core.transition_matrix(A, dt, F)
+    linalg.transition_matrix(A, dt, F)
     process_noise(x_cov, params[P_NG2], params[P_NA2], rw_var, dt, R, S, W, Qc)
-    ekf_core.sparse_rows(F, columns, F_values, F_cols, F_counts)
-    ekf_core.propagate_sparse(P, F_values, F_cols, F_counts, work)
+    linalg.sparse_rows(F, columns, F_values, F_cols, F_counts)
+    linalg.propagate_sparse(P, F_values, F_cols, F_counts, work)
     for i in range(n):  # + Qd (symmetric: the diagonal and the velocity/attitude block)
         for j in range(n):
             P[i, j] += Qc[i, j]
     counters[C_FLUSHES] += 1
-    if ekf_core.scheduled_repair(P, min_var, max_var, work, EIG_FLOOR, counters[C_FLUSHES], PD_CHECK_EVERY):
+    if linalg.scheduled_repair(P, min_var, max_var, work, EIG_FLOOR, counters[C_FLUSHES], PD_CHECK_EVERY):
         counters[C_REPAIRS] += 1
     for i in range(7):
         acc[i] = 0.0
@@ -552,9 +509,9 @@ def run_kernel(imu_t, imu_gyro, imu_accel, ev_t, ev_kind, ev_imu, ev_val, ev_var
     Parameters
     ----------
     imu_t, imu_gyro, imu_accel : ndarrays (N,), (N, 3), (N, 3)
-        IMU rows (:class:`estimators.events.ImuSamples`).
+        IMU rows (:class:`estimators.inputs.records.ImuSamples`).
     ev_t, ev_kind, ev_imu, ev_val, ev_var : ndarrays
-        Events (:class:`estimators.events.MeasurementEvents`).
+        Events (:class:`estimators.inputs.records.MeasurementEvents`).
     x0, P0 : ndarrays (n,), (n, n)
         Initial state and covariance.
     layout : int64 (4,)
@@ -600,14 +557,14 @@ def run_kernel(imu_t, imu_gyro, imu_accel, ev_t, ev_kind, ev_imu, ev_val, ev_var
     F_values = np.empty((N_DYNAMIC, n))
     F_cols = np.empty((N_DYNAMIC, n), dtype=np.int64)
     F_counts = np.empty(N_DYNAMIC, dtype=np.int64)
-    no_values = np.zeros(events.N_EVENT_VALUES)  # the event values the output's velocity model does not read
+    no_values = np.zeros(records.N_EVENT_VALUES)  # the event values the output's velocity model does not read
     g = params[P_G]
     cov_dt = params[P_COV_DT]
     field = params[P_FIELD:P_FIELD + 3].copy()
     paper_vel = params[P_PAPER_VEL] > 0.5
     paper_indirect = params[P_PAPER_INDIRECT] > 0.5
     vmin = params[P_VMIN]
-    gps_mon = ekf_core.gps_monitor()
+    gps_mon = reacquisition.gps_monitor()
     air_ok = False  # the last airspeed update was accepted (reset_to_gps)
     n_out = 0
     t = imu_t[0]
@@ -625,13 +582,13 @@ def run_kernel(imu_t, imu_gyro, imu_accel, ev_t, ev_kind, ev_imu, ev_val, ev_var
                         x_cov[i] = x[i]
                 step = t_next - t
                 propagate_state(x, gyro, accel, step, g, layout, R, S, W, k1, k2, k3, k4, xt)
-                ekf_core.accumulate_inputs(acc, step, gyro, accel)
+                linalg.accumulate_inputs(acc, step, gyro, accel)
                 t = t_next
                 if acc[0] >= cov_dt * (1.0 - 1e-9):
                     _flush_covariance(P, x_cov, acc, g, params, layout, rw_var, min_var, max_var, R, S, W, A, F,
                                       Qc, work, mean_gyro, columns, F_values, F_cols, F_counts, counters)
-                    if not ekf_core.is_healthy(x, P):
-                        ekf_core.reset_filter(x, P, x_safe, P0)
+                    if not linalg.is_healthy(x, P):
+                        linalg.reset_filter(x, P, x_safe, P0)
                         counters[C_RESETS] += 1
             if not at_event:
                 break
@@ -645,12 +602,12 @@ def run_kernel(imu_t, imu_gyro, imu_accel, ev_t, ev_kind, ev_imu, ev_val, ev_var
                     if not math.isfinite(x[i]):
                         finite = False
                 if not finite:
-                    ekf_core.reset_filter(x, P, x_safe, P0)
+                    linalg.reset_filter(x, P, x_safe, P0)
                     counters[C_RESETS] += 1
                 for i in range(n):
                     x_safe[i] = x[i]
                 _output_row(x, P, layout, field, no_values, R, S, W, H, t, out_row)
-                ekf_core.record_output(out_f, n_out, out_row)
+                recorder.record_output(out_f, n_out, out_row)
                 if n_out < out_x.shape[0]:
                     for i in range(n):
                         out_x[n_out, i] = x[i]
@@ -665,7 +622,7 @@ def run_kernel(imu_t, imu_gyro, imu_accel, ev_t, ev_kind, ev_imu, ev_val, ev_var
             is_gps = kind in (GPS_POS, GPS_VEL)
             if is_gps:
                 # (re)acquisition (math note 2.3): position and velocity to the GPS, see reset_to_gps
-                reset, counted = ekf_core.gps_reset_due(gps_mon, kind == GPS_POS, t, params[P_GPS_REJECT_S],
+                reset, counted = reacquisition.gps_reset_due(gps_mon, kind == GPS_POS, t, params[P_GPS_REJECT_S],
                                                         params[P_GPS_OUTAGE_S])
                 if reset:
                     reset_to_gps(x, P, kind, values, ev_var[j], layout, air_ok and layout[L_W] >= 0, R, S, W, H,
@@ -702,11 +659,11 @@ def run_kernel(imu_t, imu_gyro, imu_accel, ev_t, ev_kind, ev_imu, ev_val, ev_var
                     # eq 49 corrected: innovation of the error state, z - h(x_hat-) - H x_err
                     for i in range(n):
                         nu -= H[i] * x_err[i]
-                accepted, s_var, nis = ekf_core.scalar_update(P, H, nu, r_var, gate, dx, ph)
+                accepted, s_var, nis = linalg.scalar_update(P, H, nu, r_var, gate, dx, ph)
                 counters[C_UPDATES] += 1
-                ekf_core.record_update(diag_f, diag_i, counters, t, kind, c, nu, s_var, nis, accepted)
+                recorder.record_update(diag_f, diag_i, counters, t, kind, c, nu, s_var, nis, accepted)
                 if is_gps:
-                    ekf_core.gps_record(gps_mon, kind == GPS_POS, c, t, accepted)
+                    reacquisition.gps_record(gps_mon, kind == GPS_POS, c, t, accepted)
                 elif kind == AIRSPEED:
                     air_ok = accepted
                 if accepted:
@@ -716,13 +673,13 @@ def run_kernel(imu_t, imu_gyro, imu_accel, ev_t, ev_kind, ev_imu, ev_val, ev_var
                     else:
                         for i in range(n):
                             x[i] += dx[i]
-                        x[6] = ekf_core.wrap_pi(x[6])
-                        x[8] = ekf_core.wrap_pi(x[8])
+                        x[6] = rotations.wrap_pi(x[6])
+                        x[8] = rotations.wrap_pi(x[8])
             if paper_indirect:
                 for i in range(n):
                     x[i] += x_err[i]
-                x[6] = ekf_core.wrap_pi(x[6])
-                x[8] = ekf_core.wrap_pi(x[8])
+                x[6] = rotations.wrap_pi(x[6])
+                x[8] = rotations.wrap_pi(x[8])
             j += 1
     if acc[0] > 0.0:
         _flush_covariance(P, x_cov, acc, g, params, layout, rw_var, min_var, max_var, R, S, W, A, F, Qc, work,
@@ -755,7 +712,7 @@ def reset_to_gps(x, P, kind, values, variances, layout, move_wind, R, S, W, H, T
             for b in range(3):
                 work[a, b] = 0.0
             work[a, a] = variances[a]
-        ekf_core.reset_covariance_block(P, I_P, work[:3, :3].copy())
+        linalg.reset_covariance_block(P, I_P, work[:3, :3].copy())
         return
     for i in range(n):
         for k in range(n):
@@ -779,7 +736,7 @@ def reset_to_gps(x, P, kind, values, variances, layout, move_wind, R, S, W, H, T
         T[I_V, I_TH + t] = -w * W[1, t] + v * W[2, t]
         T[I_V + 1, I_TH + t] = w * W[0, t] - u * W[2, t]
         T[I_V + 2, I_TH + t] = -v * W[0, t] + u * W[1, t]
-    ekf_core.transform_covariance(P, T, work)
+    linalg.transform_covariance(P, T, work)
     # + G R_gps G^T, G = [R_nb^T on V; I (north, east) on the moved wind]
     for a in range(3):
         for b in range(3):
@@ -868,45 +825,6 @@ def kernel_inputs(inputs: ReplayInputs, config: EstimatorConfig, *, mode: str = 
                         rw_var=rw_var, min_var=np.full(n, MIN_VARIANCE), max_var=max_var)
 
 
-def shared_params(inputs: ReplayInputs, config: EstimatorConfig, n_params: int) -> np.ndarray:
-    """The kernel parameter array of a full-state filter (length ``n_params``) with the slots both filters share
-    (``P_G`` .. ``P_PAPER_VEL``, the first :data:`N_SHARED_PARAMS`) filled; the rest zero."""
-    params = np.zeros(n_params)
-    params[P_G] = inputs.gravity_m_s2
-    params[P_NG2] = config.noise.gyro_noise_rad_s_sqrt_hz ** 2
-    params[P_NA2] = config.noise.accel_noise_m_s2_sqrt_hz ** 2
-    params[P_COV_DT] = 1.0 / config.timing.covariance_rate_hz
-    params[P_FIELD:P_FIELD + 3] = inputs.mag_field_ned
-    params[P_GPS_REJECT_S] = config.timing.gps_reset_after_s
-    params[P_GPS_OUTAGE_S] = config.timing.gps_outage_reset_s
-    params[P_VMIN] = config.timing.min_ground_speed_m_s
-    params[P_PAPER_VEL] = 1.0 if config.gps_velocity_mode == "paper" else 0.0
-    return params
-
-
-def gates_per_kind(config: EstimatorConfig) -> np.ndarray:
-    """Scalar gate per event kind (:mod:`estimators.events` codes) from ``config.gates``; pseudo-measurements and
-    outputs ungated (inf)."""
-    gate_cfg = config.gates
-    gates = np.full(len(events.SENSOR_NAMES), math.inf)
-    gates[BARO], gates[AIRSPEED], gates[GPS_POS] = gate_cfg.baro, gate_cfg.airspeed, gate_cfg.gps_pos
-    gates[GPS_VEL], gates[MAG], gates[SUN] = gate_cfg.gps_vel, gate_cfg.mag, gate_cfg.sun
-    return gates
-
-
-def accel_bias_degradations(plan: events.SensorPlan, estimated: bool, configured: bool) -> tuple[str, ...]:
-    """The sensor plan's degradations, plus the accelerometer bias left out without GPS (math note 7.3)."""
-    extra = () if estimated or not configured else (
-        "no GPS: accelerometer bias not estimated (no absolute velocity reference)",)
-    return (*plan.degradations, *extra)
-
-
-def diagnostics_capacity(ev: events.MeasurementEvents) -> int:
-    """Upper bound of the number of scalar updates of a run."""
-    per_kind = np.array([1, 1, 1, 3, 3, 3, 2, 3, 0])
-    return int(per_kind[ev.kind].sum())
-
-
 def run(flight_log: FlightLog, inputs: ReplayInputs, config: EstimatorConfig, *, backend: str = "numba",
         mode: str = "direct") -> EstimatorRun:
     """Run the full-state direct filter on prepared inputs (the registry entry of :mod:`estimators.api`).
@@ -916,7 +834,7 @@ def run(flight_log: FlightLog, inputs: ReplayInputs, config: EstimatorConfig, *,
     flight_log : FlightLog
         The log (unused beyond ``inputs``; part of the common estimator signature).
     inputs : ReplayInputs
-        From :func:`estimators.events.build_replay_inputs`.
+        From :func:`estimators.inputs.build.build_replay_inputs`.
     config : EstimatorConfig
     backend : {"numba", "numpy"}
         Compiled kernel or the plain-NumPy twin (slow; tests only).
@@ -932,7 +850,7 @@ def run(flight_log: FlightLog, inputs: ReplayInputs, config: EstimatorConfig, *,
     out_f = np.full((n_out, len(OUT_COLUMNS)), np.nan)
     out_x = np.full((n_out, n), np.nan)
     out_sx = np.full((n_out, n), np.nan)
-    diag_f, diag_i = ekf_core.diagnostics_arrays(diagnostics_capacity(ev))
+    diag_f, diag_i = recorder.diagnostics_arrays(diagnostics_capacity(ev))
     counters = np.zeros(N_COUNTERS, dtype=np.int64)
     args = (imu.time_s, imu.gyro_rad_s, imu.accel_m_s2, ev.time_s, ev.kind, ev.imu_index, ev.values, ev.variances,
             k.x0, k.P0, k.layout, k.params, k.gates, k.rw_var, k.min_var, k.max_var, out_f, out_x, out_sx, diag_f,
@@ -941,7 +859,7 @@ def run(flight_log: FlightLog, inputs: ReplayInputs, config: EstimatorConfig, *,
     if backend == "numba":
         x_final, _ = run_kernel(*args)
     elif backend == "numpy":
-        from estimators.full_state_direct_numpy import run_reference
+        from estimators.direct.reference import run_reference
 
         x_final, _ = run_reference(*args)
     else:

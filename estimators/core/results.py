@@ -15,8 +15,8 @@ import numpy as np
 import pandas as pd
 
 from estimators import environment
-from estimators.ekf_core import C_DIAG_DROPPED, C_GPS_RESETS, C_REPAIRS, C_RESETS, C_UPDATES
-from estimators.events import COMPONENT_NAMES, SENSOR_NAMES, Origin, ReplayInputs
+from estimators.core.recorder import C_DIAG_DROPPED, C_GPS_RESETS, C_REPAIRS, C_RESETS, C_UPDATES
+from estimators.inputs.records import COMPONENT_NAMES, SENSOR_NAMES, Origin, ReplayInputs
 
 #: Columns of the states table, in order.
 STATE_COLUMNS = ("estimator", "time_s", "roll_deg", "pitch_deg", "yaw_deg", "lat_deg", "lon_deg", "alt_m",
@@ -27,7 +27,7 @@ STD_COLUMNS = ("roll_deg_std", "pitch_deg_std", "yaw_deg_std", "pos_n_m_std", "p
 #: Columns of the diagnostics table, in order.
 DIAGNOSTIC_COLUMNS = ("estimator", "time_s", "sensor", "component", "innovation", "innovation_var", "nis",
                       "accepted")
-#: Diagnostics sensor codes beyond the measurement event kinds of :mod:`estimators.events`: the three-stage
+#: Diagnostics sensor codes beyond the measurement event kinds of :mod:`estimators.inputs.build`: the three-stage
 #: filter's stage-1 accelerometer update and its wind-triangle pseudo-measurement.
 ACCEL = len(SENSOR_NAMES)
 WIND = ACCEL + 1
@@ -120,7 +120,7 @@ def replay_details(inputs: ReplayInputs) -> dict:
 def kernel_report(name: str, inputs: ReplayInputs, counters: np.ndarray, *, timings_s: dict[str, float],
                   details: dict, warnings=(), diverged: str = "filter", used=None, skipped=None,
                   degradations=None) -> EstimatorReport:
-    """The report of a compiled run from its counter array (the shared slots of :mod:`estimators.ekf_core`).
+    """The report of a compiled run from its counter array (the shared slots of :mod:`estimators.core.linalg`).
 
     Parameters
     ----------
@@ -224,7 +224,7 @@ def _missing(k: int) -> np.ndarray:
 
 
 def diagnostics_frame(diag_f: np.ndarray, diag_i: np.ndarray, count: int) -> pd.DataFrame:
-    """The diagnostics table from the kernels' recorder arrays (see :mod:`estimators.ekf_core`).
+    """The diagnostics table from the kernels' recorder arrays (see :mod:`estimators.core.linalg`).
 
     ``sensor`` and ``component`` become categorical names (:data:`DIAGNOSTIC_SENSOR_NAMES`,
     :data:`DIAGNOSTIC_COMPONENT_NAMES`; the same categories for every estimator), ``accepted`` a bool. The float

@@ -1,7 +1,7 @@
 """Three-stage series estimator (paper section 3.1 and Algorithm 1; math note section 3, degraded modes section 7).
 
 Three small EKFs in series, each feeding the next its estimate as an input (models in
-:mod:`estimators.three_stage_models`, the EKF algebra in :mod:`estimators.ekf_core`):
+:mod:`estimators.three_stage.model`, the EKF algebra in :mod:`estimators.core.linalg`):
 
 1. **Roll and pitch** ``x1 = (phi, theta)`` [rad], propagated with the bias-corrected gyro (bias from the still
    window at the start, math note 3.0; no bias states), updated with the accelerometer: three sequential scalar
@@ -15,7 +15,7 @@ Three small EKFs in series, each feeding the next its estimate as an input (mode
 2. **Heading** ``x2 = psi_2`` [rad], propagated with ``psi_dot = (q s_ph + r c_ph) / c_th`` (eq 22 corrected),
    updated with the magnetometer (unit vector against the unit World Magnetic Model field, eq 24/25 corrected)
    and/or the photocell sun vector (tangent-plane form of math note 8.5), whichever the replay inputs carry
-   (``heading="mag"|"sun"|"mag+sun"`` of :func:`estimators.events.build_replay_inputs`). Cascade consistency: R is
+   (``heading="mag"|"sun"|"mag+sun"`` of :func:`estimators.inputs.build.build_replay_inputs`). Cascade consistency: R is
    inflated by the stage-1 covariance, ``R_eff = R + J P1 J^T`` with ``J = dh/d(phi, theta)``; the correlated
    vector is gated as a whole (chi-square) and whitened (Cholesky) before its scalar updates. Heading
    re-acquisition (the GPS rule of math note 2.3 applied to heading): when every heading vector has been gated
@@ -59,11 +59,10 @@ import numpy as np
 from numba import njit
 from scipy.stats import chi2
 
-from estimators import ekf_core, events
 from estimators.config import EstimatorConfig
-from estimators.ekf_core import C_DIAG, C_GPS_RESETS, C_OUTPUTS, C_REPAIRS, C_RESETS, C_UPDATES, N_SHARED_COUNTERS
-from estimators.events import AIRSPEED, BARO, GPS_POS, GPS_VEL, MAG, OUTPUT, SUN, ReplayInputs
-from estimators.results import (
+from estimators.core import linalg, reacquisition, recorder, rotations
+from estimators.core.recorder import C_DIAG, C_GPS_RESETS, C_OUTPUTS, C_REPAIRS, C_RESETS, C_UPDATES, N_SHARED_COUNTERS
+from estimators.core.results import (
     ACCEL,
     WIND,
     EstimatorRun,
@@ -72,9 +71,11 @@ from estimators.results import (
     replay_details,
     states_frame,
 )
-from estimators.state_table import StateSpec, initial_covariance, process_noise_psd
-from estimators.sun_vector import sun_tangent_basis
-from estimators.three_stage_models import (
+from estimators.core.state_table import StateSpec, initial_covariance, process_noise_psd
+from estimators.inputs import records
+from estimators.inputs.records import AIRSPEED, BARO, GPS_POS, GPS_VEL, MAG, OUTPUT, SUN, ReplayInputs
+from estimators.sun.measurement import sun_tangent_basis
+from estimators.three_stage.model import (
     I_DEVIATION,
     corrected_heading,
     euler_yaw_rate,
@@ -376,7 +377,7 @@ def _rk4_stage3_fw(x, va, psi_dot, cps, sps, turn, dt):
     x[0] += dt / 6.0 * (k1[0] + 2.0 * k2[0] + 2.0 * k3[0] + k4[0])
     x[1] += dt / 6.0 * (k1[1] + 2.0 * k2[1] + 2.0 * k3[1] + k4[1])
     x[2] += dt / 6.0 * (k1[2] + 2.0 * k2[2] + 2.0 * k3[2] + k4[2])
-    x[3] = ekf_core.wrap_pi(chi + dt / 6.0 * (k1[3] + 2.0 * k2[3] + 2.0 * k3[3] + k4[3]))
+    x[3] = rotations.wrap_pi(chi + dt / 6.0 * (k1[3] + 2.0 * k2[3] + 2.0 * k3[3] + k4[3]))
 
 
 @njit(cache=True)
@@ -429,7 +430,7 @@ def _forward_solve(L, B, m):
 @njit(cache=True, inline="always")
 def _cholesky_lower(M, m, L):
     """Lower Cholesky factor of ``M[:m, :m]`` into ``L`` (NaN when it is not positive definite)."""
-    if not ekf_core.cholesky_lower(M, L, m, 0.0):
+    if not linalg.cholesky_lower(M, L, m, 0.0):
         L[:m, :m] = math.nan
 
 
@@ -448,7 +449,7 @@ def _propagate_states(dt, rates, f_b, va, prm, x1, x2, P2, x3, stage3_on):
     P2[0, 0] += variance_rate * dt
     psi_dot = euler_yaw_rate(sph, cph, cth, q, r)
     _rk4_stage1(x1, p, q, r, stage1_rates(sph, cph, math.tan(theta), p, q, r), dt)
-    x2[0] = ekf_core.wrap_pi(psi2 + psi_dot * dt)  # A = 0 (eq 23): exact with the held inputs
+    x2[0] = rotations.wrap_pi(psi2 + psi_dot * dt)  # A = 0 (eq 23): exact with the held inputs
     if not stage3_on:
         return
     if prm.fixed_wing_nav:
@@ -464,7 +465,7 @@ def _propagate_states(dt, rates, f_b, va, prm, x1, x2, P2, x3, stage3_on):
 @njit(cache=True)
 def _accumulate(acc, dt, rates, f_b, va):
     """Sum the inputs of an interval for a deferred covariance propagation: (dt, omega dt, f dt, V_a dt)."""
-    ekf_core.accumulate_inputs(acc, dt, rates, f_b)
+    linalg.accumulate_inputs(acc, dt, rates, f_b)
     acc[7] += va * dt
 
 
@@ -478,12 +479,12 @@ def _flush_stage1(acc, x1_start, P1, prm, A, G, F, Q, W, rates):
         return
     for i in range(3):
         rates[i] = acc[1 + i] / dt
-    ekf_core.transition_matrix(stage1_A(x1_start, rates, A), dt, F)
+    linalg.transition_matrix(stage1_A(x1_start, rates, A), dt, F)
     for i in range(2):
         for j in range(2):
             Q[i, j] = prm.qc1[i, j] * dt
     _add_input_noise(stage1_G(x1_start, G), prm.gyro_psd, dt, Q)
-    ekf_core.propagate_covariance(P1, F, Q, W)
+    linalg.propagate_covariance(P1, F, Q, W)
     acc[:] = 0.0
 
 
@@ -502,25 +503,25 @@ def _flush_stage3(acc, x3_start, attitude_start, P1, P2, P3, prm, A, G, F, Q, W,
         u[0], u[1], u[2] = acc[7] / dt, acc[2] / dt, acc[3] / dt
         u[3], u[4], u[5] = attitude_start[0], attitude_start[1], attitude_start[2]
         stage3_fw_jacobians(x3_start, u, prm.gravity_m_s2, A, G)
-        ekf_core.transition_matrix(A, dt, F)
+        linalg.transition_matrix(A, dt, F)
         # airspeed and stage-2 heading errors as inputs: first-order Gauss-Markov errors with the correlation
         # time INPUT_CORRELATION_S have the low-frequency density 2 sigma^2 T (math note 3.3)
         input_var[0], input_var[1] = prm.airspeed_var, P2[0, 0]
         _add_input_noise(G, input_var, 2.0 * INPUT_CORRELATION_S * dt, Q)
     else:
-        ekf_core.transition_matrix(prm.a3_multicopter, dt, F)
+        linalg.transition_matrix(prm.a3_multicopter, dt, F)
         # accelerometer density (rotation-invariant) plus the tilt error g * delta (math note 3.4)
         velocity_var = prm.accel_psd * dt + prm.gravity_m_s2 ** 2 * max(P1[0, 0], P1[1, 1]) * dt * dt
         Q[2, 2] += velocity_var
         Q[3, 3] += velocity_var
-    ekf_core.propagate_covariance(P3, F, Q, W)
+    linalg.propagate_covariance(P3, F, Q, W)
     acc[:] = 0.0
 
 
 @njit(cache=True)
 def _record(diag_f, diag_i, counters, t, sensor, component, nu, s_var, nis, accepted):
     counters[C_UPDATES] += 1
-    ekf_core.record_update(diag_f, diag_i, counters, t, sensor, component, nu, s_var, nis, accepted)
+    recorder.record_update(diag_f, diag_i, counters, t, sensor, component, nu, s_var, nis, accepted)
 
 
 @njit(cache=True, inline="always")
@@ -544,7 +545,7 @@ def _stage1_update(t, f_mean, rates_mean, va, accel_n, prm, x1, P1, x2, w, mw, d
     extra_var = mismatch * mismatch if mismatch > prm.manoeuvre_threshold_m_s2 else 0.0
     for axis in range(3):
         nu = f_mean[axis] - h[axis]
-        accepted, s_var, nis = ekf_core.scalar_update(P1, c[axis], nu, prm.accel_var[axis] + extra_var,
+        accepted, s_var, nis = linalg.scalar_update(P1, c[axis], nu, prm.accel_var[axis] + extra_var,
                                                       prm.accel_gate, w.dx, w.ph)
         _record(diag_f, diag_i, counters, t, ACCEL, axis, nu, s_var, nis, accepted)
         if accepted:
@@ -582,7 +583,7 @@ def _whitened_update(t, sensor, x, P, m, nu, H, R, gate_d2, w, mw, diag_f, diag_
             _record(diag_f, diag_i, counters, t, sensor, i, nu[i, 0], S[i, i], nu[i, 0] ** 2 / S[i, i], False)
         return False
     for i in range(m):
-        accepted, s_var, nis = ekf_core.scalar_update(P, H[i], nu[i, 0], 1.0, math.inf, w.dx, w.ph)
+        accepted, s_var, nis = linalg.scalar_update(P, H[i], nu[i, 0], 1.0, math.inf, w.dx, w.ph)
         _record(diag_f, diag_i, counters, t, sensor, i, nu[i, 0], s_var, nis, accepted)
         if accepted:
             x += w.dx
@@ -639,7 +640,7 @@ def _stage2_update(t, kind, values, variances, prm, x1, P1, x2, P2, w, mw, diag_
         R[i, i] += variances[0]
     heading = measured_heading(z, ref, x1[0], x1[1])
     gated = _whitened_update(t, kind, x2, P2, m, nu, H, R, gate_d2, w, mw, diag_f, diag_i, counters)
-    x2[0] = ekf_core.wrap_pi(x2[0])
+    x2[0] = rotations.wrap_pi(x2[0])
     return gated, heading
 
 
@@ -654,7 +655,7 @@ def measured_heading(z_body, ref_ned, phi, theta):
     level_e = cph * z_body[1] - sph * z_body[2]
     if math.hypot(level_n, level_e) < MIN_HORIZONTAL or math.hypot(ref_ned[0], ref_ned[1]) < MIN_HORIZONTAL:
         return math.nan
-    return ekf_core.wrap_pi(math.atan2(ref_ned[1], ref_ned[0]) - math.atan2(level_e, level_n))
+    return rotations.wrap_pi(math.atan2(ref_ned[1], ref_ned[0]) - math.atan2(level_e, level_n))
 
 
 @njit(cache=True)
@@ -672,7 +673,7 @@ def _stage3_fw_wind(t, va, vd_gps, prm, x2, P2, x3, P3, w, mw, diag_f, diag_i, c
     R[0, 0] += prm.wind_pseudo_var
     R[1, 1] += prm.wind_pseudo_var
     _whitened_update(t, WIND, x3, P3, 2, mw.nu, w.H, R, math.inf, w, mw, diag_f, diag_i, counters)
-    x3[3] = ekf_core.wrap_pi(x3[3])
+    x3[3] = rotations.wrap_pi(x3[3])
 
 
 @njit(cache=True)
@@ -693,14 +694,14 @@ def _stage3_gps_velocity(t, values, variances, prm, x3, P3, w, gps_mon, diag_f, 
                 nu = speed - x3[2]
                 r_var = 0.5 * (variances[0] + variances[1])
             else:
-                nu = ekf_core.wrap_pi(course - x3[3])
+                nu = rotations.wrap_pi(course - x3[3])
                 r_var = 0.5 * (variances[0] + variances[1]) / (speed * speed)  # eq 9 corrected (T5)
-            accepted, s_var, nis = ekf_core.scalar_update(P3, H, nu, r_var, prm.gps_vel_gate, w.dx, w.ph)
+            accepted, s_var, nis = linalg.scalar_update(P3, H, nu, r_var, prm.gps_vel_gate, w.dx, w.ph)
             _record(diag_f, diag_i, counters, t, GPS_VEL, 3 + comp, nu, s_var, nis, accepted)
-            ekf_core.gps_record(gps_mon, False, comp, t, accepted)
+            reacquisition.gps_record(gps_mon, False, comp, t, accepted)
             if accepted:
                 x3 += w.dx
-                x3[3] = ekf_core.wrap_pi(x3[3])
+                x3[3] = rotations.wrap_pi(x3[3])
         return
     for comp in range(2):
         if prm.fixed_wing_nav:
@@ -712,13 +713,13 @@ def _stage3_gps_velocity(t, values, variances, prm, x3, P3, w, gps_mon, diag_f, 
             nu = values[comp] - x3[2 + comp]
             H[:] = 0.0
             H[2 + comp] = 1.0
-        accepted, s_var, nis = ekf_core.scalar_update(P3, H, nu, variances[comp], prm.gps_vel_gate, w.dx, w.ph)
+        accepted, s_var, nis = linalg.scalar_update(P3, H, nu, variances[comp], prm.gps_vel_gate, w.dx, w.ph)
         _record(diag_f, diag_i, counters, t, GPS_VEL, comp, nu, s_var, nis, accepted)
-        ekf_core.gps_record(gps_mon, False, comp, t, accepted)
+        reacquisition.gps_record(gps_mon, False, comp, t, accepted)
         if accepted:
             x3 += w.dx
             if prm.fixed_wing_nav:
-                x3[3] = ekf_core.wrap_pi(x3[3])
+                x3[3] = rotations.wrap_pi(x3[3])
 
 
 @njit(cache=True)
@@ -768,7 +769,7 @@ def _output_row(t, x1, P1, x2, P2, x3, P3, stage3_on, fixed_wing_nav, height, ve
     if fixed_wing_nav:
         # heading corrected by the stage-3 deviation estimate (its correlation with stage 2 is not tracked)
         psi, _, dpsi_ddev = corrected_heading(x3, x2[0])
-        row[O_YAW] = ekf_core.wrap_pi(psi)
+        row[O_YAW] = rotations.wrap_pi(psi)
         row[O_YAW_STD] = math.sqrt(P2[0, 0] + _quadratic_form(dpsi_ddev, P3, I_DEVIATION))
         c, s, vg = math.cos(x3[3]), math.sin(x3[3]), x3[2]
         row[O_VN] = vg * c
@@ -790,17 +791,17 @@ def _output_row(t, x1, P1, x2, P2, x3, P3, stage3_on, fixed_wing_nav, height, ve
 @njit(cache=True, inline="always")
 def _check_health(x, P, x_safe, P0, counters):
     """Divergence reset (non-finite state or covariance -> last healthy state, initial covariance)."""
-    if ekf_core.is_healthy(x, P):
+    if linalg.is_healthy(x, P):
         x_safe[:] = x
     else:
-        ekf_core.reset_filter(x, P, x_safe, P0)
+        linalg.reset_filter(x, P, x_safe, P0)
         counters[C_RESETS] += 1
 
 
 @njit(cache=True, inline="always")
 def _repair(P, max_var, w, counters):
-    """Covariance limits and positive definiteness after measurement updates (:func:`ekf_core.repair_covariance`)."""
-    if ekf_core.repair_covariance(P, w.min_var, max_var, w.W, EIG_FLOOR):
+    """Covariance limits and positive definiteness after measurement updates (:func:`linalg.repair_covariance`)."""
+    if linalg.repair_covariance(P, w.min_var, max_var, w.W, EIG_FLOOR):
         counters[C_REPAIRS] += 1
 
 
@@ -812,9 +813,9 @@ def run_kernel(imu_t, imu_gyro, imu_accel, ev_t, ev_kind, ev_imu, ev_val, ev_var
     Parameters
     ----------
     imu_t, imu_gyro, imu_accel : ndarrays (N,), (N, 3), (N, 3)
-        IMU rows (:class:`estimators.events.ImuSamples`): row k holds over ``(imu_t[k-1], imu_t[k]]``.
+        IMU rows (:class:`estimators.inputs.records.ImuSamples`): row k holds over ``(imu_t[k-1], imu_t[k]]``.
     ev_t, ev_kind, ev_imu, ev_val, ev_var : ndarrays
-        Events (:class:`estimators.events.MeasurementEvents`).
+        Events (:class:`estimators.inputs.records.MeasurementEvents`).
     prm : KernelParams
     x1, P1, x2, P2 : ndarrays (2,), (2, 2), (1,), (1, 1)
         Stage 1 and 2 state and covariance, initial on entry, final on return (in place).
@@ -823,7 +824,7 @@ def run_kernel(imu_t, imu_gyro, imu_accel, ev_t, ev_kind, ev_imu, ev_val, ev_var
     out : ndarray (K, len(OUT_COLUMNS))
         One row per OUTPUT event.
     diag_f, diag_i : ndarrays
-        Diagnostics recorder arrays (:mod:`estimators.ekf_core`).
+        Diagnostics recorder arrays (:mod:`estimators.core.linalg`).
     counters : int64 (N_COUNTERS,)
     """
     n3 = x3.shape[0]
@@ -847,7 +848,7 @@ def run_kernel(imu_t, imu_gyro, imu_accel, ev_t, ev_kind, ev_imu, ev_val, ev_var
     gps_acc = np.zeros(3)
     gps_pos, gps_pos_var = np.zeros(2), np.zeros(2)
     gps_pos_t = -math.inf
-    gps_mon = ekf_core.gps_monitor()  # re-acquisition rule (math note 2.3), armed when stage 3 starts
+    gps_mon = reacquisition.gps_monitor()  # re-acquisition rule (math note 2.3), armed when stage 3 starts
     heading_rejected_since = math.inf  # start of the current streak of gated-out heading vectors
     P2_reset = P2[0, 0]  # the alignment's heading variance, given to a re-acquired heading
     n_out = 0
@@ -893,7 +894,7 @@ def run_kernel(imu_t, imu_gyro, imu_accel, ev_t, ev_kind, ev_imu, ev_val, ev_var
                 if stage3_on:
                     _check_health(x3, P3, x3_safe, prm.p3_0, counters)
                 _output_row(t, x1, P1, x2, P2, x3, P3, stage3_on, prm.fixed_wing_nav, height, vertical_speed, row)
-                ekf_core.record_output(out, n_out, row)
+                recorder.record_output(out, n_out, row)
                 n_out += 1
             elif kind == AIRSPEED:
                 va = values[0] if t - va_t > STALE_AFTER_S else _lowpass(va, values[0], t - va_t,
@@ -934,7 +935,7 @@ def run_kernel(imu_t, imu_gyro, imu_accel, ev_t, ev_kind, ev_imu, ev_val, ev_var
                               w3.A, w3.G, w3.F, w3.Q, w3.W, w3.u, w3.input_var)
                 reset, counted = False, False
                 if stage3_on:
-                    reset, counted = ekf_core.gps_reset_due(gps_mon, True, t, prm.gps_reset_after_s,
+                    reset, counted = reacquisition.gps_reset_due(gps_mon, True, t, prm.gps_reset_after_s,
                                                             prm.gps_outage_reset_s)
                 if reset:
                     # re-acquisition: position (and velocity, at its event) to GPS, variances to R,
@@ -955,14 +956,14 @@ def run_kernel(imu_t, imu_gyro, imu_accel, ev_t, ev_kind, ev_imu, ev_val, ev_var
                         H3[:] = 0.0
                         H3[i] = 1.0
                         nu = values[i] - x3[i]
-                        accepted, s_var, nis = ekf_core.scalar_update(P3, H3, nu, variances[i], prm.gps_pos_gate,
+                        accepted, s_var, nis = linalg.scalar_update(P3, H3, nu, variances[i], prm.gps_pos_gate,
                                                                       w3.dx, w3.ph)
                         _record(diag_f, diag_i, counters, t, GPS_POS, i, nu, s_var, nis, accepted)
-                        ekf_core.gps_record(gps_mon, True, i, t, accepted)
+                        reacquisition.gps_record(gps_mon, True, i, t, accepted)
                         if accepted:
                             x3 += w3.dx
                     if prm.fixed_wing_nav:
-                        x3[3] = ekf_core.wrap_pi(x3[3])
+                        x3[3] = rotations.wrap_pi(x3[3])
                     _repair(P3, prm.max_var3, w3, counters)
             elif kind == GPS_VEL:
                 dt_gps = t - gps_vel_t
@@ -987,11 +988,11 @@ def run_kernel(imu_t, imu_gyro, imu_accel, ev_t, ev_kind, ev_imu, ev_val, ev_var
                         x3_safe[:] = x3
                         acc3[:] = 0.0
                         stage3_on = True
-                        ekf_core.gps_acquired(gps_mon, t)
+                        reacquisition.gps_acquired(gps_mon, t)
                 else:
                     _flush_stage3(acc3, x3_start, attitude_start, P1, P2, P3, prm,
                                   w3.A, w3.G, w3.F, w3.Q, w3.W, w3.u, w3.input_var)
-                    reset, counted = ekf_core.gps_reset_due(gps_mon, False, t, prm.gps_reset_after_s,
+                    reset, counted = reacquisition.gps_reset_due(gps_mon, False, t, prm.gps_reset_after_s,
                                                             prm.gps_outage_reset_s)
                     if reset:
                         _stage3_init_velocity(values, variances, prm, x3, P3)
@@ -1051,7 +1052,7 @@ def kernel_setup(inputs: ReplayInputs, config: EstimatorConfig, options: ThreeSt
     accel_var = np.full(3, max(noise.accel_noise_m_s2_sqrt_hz ** 2 * options.accel_update_rate_hz,
                                options.accel_sigma_floor_m_s2 ** 2))
     accel_var[1] *= options.accel_tau
-    variance_floor = np.zeros(len(events.SENSOR_NAMES))
+    variance_floor = np.zeros(len(records.SENSOR_NAMES))
     variance_floor[MAG] = options.mag_sigma_floor ** 2
     variance_floor[GPS_POS] = options.gps_pos_sigma_floor_m ** 2
     variance_floor[GPS_VEL] = options.gps_vel_sigma_floor_m_s ** 2
@@ -1105,9 +1106,9 @@ def vector_gate(gate_sigma: float, n_components: int) -> float:
     return float(chi2.isf(chi2.sf(gate_sigma ** 2, 1), n_components))
 
 
-def diagnostics_capacity(ev: events.MeasurementEvents, imu_duration_s: float, options: ThreeStageOptions) -> int:
+def diagnostics_capacity(ev: records.MeasurementEvents, imu_duration_s: float, options: ThreeStageOptions) -> int:
     """Upper bound of the number of scalar updates of a run."""
-    per_kind = np.zeros(len(events.SENSOR_NAMES), dtype=np.int64)
+    per_kind = np.zeros(len(records.SENSOR_NAMES), dtype=np.int64)
     per_kind[GPS_POS] = 4  # wind pseudo (2) + north, east
     per_kind[GPS_VEL] = 2
     per_kind[MAG] = 3
@@ -1125,7 +1126,7 @@ def run(flight_log: FlightLog, inputs: ReplayInputs, config: EstimatorConfig, *,
     flight_log : FlightLog
         The log (unused beyond ``inputs``; part of the common estimator signature).
     inputs : ReplayInputs
-        From :func:`estimators.events.build_replay_inputs` (heading sources, output epochs, alignment).
+        From :func:`estimators.inputs.build.build_replay_inputs` (heading sources, output epochs, alignment).
     config : EstimatorConfig
         Shared noise, gates, initial sigmas and timing.
     options : ThreeStageOptions, optional
@@ -1144,7 +1145,7 @@ def run(flight_log: FlightLog, inputs: ReplayInputs, config: EstimatorConfig, *,
     ev, imu = inputs.events, inputs.imu
     out = np.full((ev.count(OUTPUT), len(OUT_COLUMNS)), np.nan)
     capacity = diagnostics_capacity(ev, float(imu.time_s[-1] - imu.time_s[0]), options)
-    diag_f, diag_i = ekf_core.diagnostics_arrays(capacity)
+    diag_f, diag_i = recorder.diagnostics_arrays(capacity)
     counters = np.zeros(N_COUNTERS, dtype=np.int64)
     x1, P1, x2, P2 = setup.x1.copy(), setup.P1.copy(), setup.x2.copy(), setup.P2.copy()
     x3, P3 = setup.x3.copy(), setup.P3.copy()

@@ -41,260 +41,51 @@ OUTPUT         (none)                                         (none)
 =============  ============================================  ============================================
 """
 
+
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
 
 import numpy as np
 import pandas as pd
 
 from estimators import environment
 from estimators.config import PX4_DEFAULT_GPS_DELAY_MS, EstimatorConfig
+from estimators.inputs.alignment import initial_alignment
+from estimators.inputs.records import (
+    AIRSPEED,
+    BARO,
+    GPS_POS,
+    GPS_VEL,
+    HEADING_SOURCES,
+    MAG,
+    N_EVENT_VALUES,
+    OUTPUT,
+    SENSOR_NAMES,
+    SIDESLIP,
+    SUN,
+    ZERO_VELOCITY,
+    GpsRows,
+    ImuSamples,
+    MeasurementEvents,
+    Origin,
+    ReplayInputs,
+    SensorPlan,
+)
 from ingest.errors import InputError
 from ingest.flightlog import FlightLog
-from ingest.frames import quat_to_euler
 
-# Measurement kinds: integer codes used by the kernels and in the diagnostics. The order is also the processing
-# order of events with equal time stamps (fast group, GPS, heading, pseudo, output last; paper Alg. 2).
-BARO = 0
-AIRSPEED = 1
-SIDESLIP = 2
-GPS_POS = 3
-GPS_VEL = 4
-MAG = 5
-SUN = 6
-ZERO_VELOCITY = 7
-OUTPUT = 8
-#: Sensor name per kind (the ``sensor`` column of the diagnostics).
-SENSOR_NAMES = ("baro", "airspeed", "sideslip", "gps_pos", "gps_vel", "mag", "sun", "zero_velocity", "output")
-#: Component names per kind (the ``component`` column of the diagnostics), indexed by the kernels' component id.
-COMPONENT_NAMES = (("alt",), ("tas",), ("v",), ("n", "e", "d"), ("n", "e", "d", "vg", "chi"), ("x", "y", "z"),
-                   ("t1", "t2"), ("n", "e", "d"), ())
-#: Width of the event value and variance arrays.
-N_EVENT_VALUES = 6
-#: Pseudo-measurements are never gated.
-PSEUDO_KINDS = frozenset({SIDESLIP, ZERO_VELOCITY})
-#: Valid ``heading`` choices.
-HEADING_SOURCES = ("mag", "sun", "mag+sun")
 #: GPS rows with a worse horizontal accuracy [m] are not used (math note 7: eph < 10 m); the origin needs < 5 m.
 GPS_MAX_EPH_M = 10.0
 GPS_ORIGIN_MAX_EPH_M = 5.0
 #: Magnetometer stream accepted when its median field strength lies in this range [gauss] (math note 7).
 MAG_STRENGTH_RANGE_GAUSS = (0.15, 1.0)
-#: The sun gives an initial yaw only when its horizontal component (cos of the elevation) exceeds this.
-MIN_SUN_HORIZONTAL = 0.2
-#: A still window's specific-force norm may differ this much from gravity (accelerometer offset) [m/s^2].
-STILL_GRAVITY_TOLERANCE_M_S2 = 1.0
-#: A magnetometer whose inclination at the start differs more than this from the reference field is not used [deg].
-MAG_DIP_TOLERANCE_DEG = 15.0
 #: Horizontal accuracy assumed when a receiver reports none [m] (Table 1: NEO-M8N 2.5 m).
 GPS_DEFAULT_EPH_M = 2.5
 #: Seconds of GPS used to estimate the barometer offset (math note 3.0).
 BARO_OFFSET_WINDOW_S = 10.0
 #: Decimal year used for the magnetic model when a log carries no UTC time.
 FALLBACK_DECIMAL_YEAR = 2020.0
-
-
-@dataclass(frozen=True)
-class ImuSamples:
-    """Cleaned IMU rows (body FRD).
-
-    Attributes
-    ----------
-    time_s : ndarray (n,)
-        Log clock [s], strictly increasing. Row k is the rate held over ``(time_s[k-1], time_s[k]]``.
-    gyro_rad_s : ndarray (n, 3)
-        Angular rate [rad/s].
-    accel_m_s2 : ndarray (n, 3)
-        Specific force [m/s^2] (about (0, 0, -g) at rest and level).
-    median_dt_s : float
-        Median sample interval [s].
-    gaps : tuple of (float, float)
-        ``(start_time_s, length_s)`` of intervals longer than ``max_imu_gap_factor`` median periods.
-    n_dropped : int
-        Rows removed (non-finite or non-increasing time).
-    """
-
-    time_s: np.ndarray
-    gyro_rad_s: np.ndarray
-    accel_m_s2: np.ndarray
-    median_dt_s: float
-    gaps: tuple[tuple[float, float], ...]
-    n_dropped: int
-
-
-@dataclass(frozen=True)
-class MeasurementEvents:
-    """Time-sorted measurement and output events (see the module table for values per kind).
-
-    Attributes
-    ----------
-    time_s : ndarray (m,)
-        Event time on the log clock [s] (sample time, GPS latency removed).
-    kind : ndarray (m,) int64
-        Measurement kind code (``BARO`` ... ``OUTPUT``).
-    imu_index : ndarray (m,) int64
-        Index k of the IMU row whose interval ``(time_s[k-1], time_s[k]]`` contains the event (0: at the start).
-    values : ndarray (m, 6)
-        Measurement values.
-    variances : ndarray (m, 6)
-        Measurement noise variances per component.
-    """
-
-    time_s: np.ndarray
-    kind: np.ndarray
-    imu_index: np.ndarray
-    values: np.ndarray
-    variances: np.ndarray
-
-    def __len__(self) -> int:
-        return len(self.time_s)
-
-    def count(self, kind: int) -> int:
-        """Number of events of one kind."""
-        return int(np.count_nonzero(self.kind == kind))
-
-    def without(self, kinds) -> MeasurementEvents:
-        """A copy without the events of the given kinds (order kept)."""
-        keep = ~np.isin(self.kind, np.asarray(tuple(kinds), dtype=np.int64))
-        return MeasurementEvents(self.time_s[keep], self.kind[keep], self.imu_index[keep], self.values[keep],
-                                 self.variances[keep])
-
-
-@dataclass(frozen=True)
-class Origin:
-    """Local NED origin (math note 1.1).
-
-    Attributes
-    ----------
-    lat_deg, lon_deg : float
-        WGS-84 latitude/longitude [deg] (NaN without GPS).
-    alt_m : float
-        Altitude above MSL [m] (first good GPS fix, else the first barometer altitude, else 0).
-    source : str
-        ``"gps"``, ``"baro"`` or ``"none"``.
-    """
-
-    lat_deg: float
-    lon_deg: float
-    alt_m: float
-    source: str
-
-
-@dataclass(frozen=True)
-class Alignment:
-    """Initial state (math note 5.5).
-
-    Attributes
-    ----------
-    roll_rad, pitch_rad, yaw_rad : float
-        Initial ZYX Euler angles [rad].
-    gyro_bias_rad_s : ndarray (3,)
-        Initial gyro bias [rad/s] (mean gyro of the still window, else zeros).
-    velocity_ned_m_s : ndarray (3,)
-        Initial NED velocity [m/s] (zero when still, else the first GPS velocity).
-    position_ned_m : ndarray (3,)
-        Initial NED position [m] (first GPS position, else zeros; down from the barometer when no GPS).
-    still_window_s : tuple of (float, float) or None
-        ``(start, end)`` of the still window used, or None for an in-air start.
-    yaw_source : str
-        ``"mag"``, ``"sun"`` (gravity + sun vector), ``"onboard_attitude"`` (reference borrowed from the
-        autopilot), ``"gps_course"`` or ``"none"``.
-    tilt_source : str
-        ``"still_window"``, ``"onboard_attitude"`` or ``"accelerometer"`` (in-air levelling).
-    """
-
-    roll_rad: float
-    pitch_rad: float
-    yaw_rad: float
-    gyro_bias_rad_s: np.ndarray
-    velocity_ned_m_s: np.ndarray
-    position_ned_m: np.ndarray
-    still_window_s: tuple[float, float] | None
-    yaw_source: str
-    tilt_source: str
-
-
-@dataclass(frozen=True)
-class SensorPlan:
-    """What a replay can use (math note 7).
-
-    Attributes
-    ----------
-    fixed_wing : bool
-        MAV_TYPE says fixed-wing: airspeed-based models and the zero-sideslip pseudo-measurement apply.
-    has_gps, has_baro, has_mag, has_airspeed, has_sun : bool
-        Usable streams.
-    used : tuple of str
-        Sensors with events (names from :data:`SENSOR_NAMES`).
-    skipped : dict of str -> str
-        Sensor -> why it is not used.
-    degradations : tuple of str
-        Degraded modes applied, in words.
-    """
-
-    fixed_wing: bool
-    has_gps: bool
-    has_baro: bool
-    has_mag: bool
-    has_airspeed: bool
-    has_sun: bool
-    used: tuple[str, ...]
-    skipped: dict[str, str]
-    degradations: tuple[str, ...]
-
-
-@dataclass(frozen=True)
-class ReplayInputs:
-    """Everything a filter kernel needs from one log.
-
-    Attributes
-    ----------
-    imu : ImuSamples
-    events : MeasurementEvents
-        Sorted events including the ``OUTPUT`` epochs.
-    origin : Origin
-    plan : SensorPlan
-    alignment : Alignment
-    mag_field_ned : ndarray (3,)
-        Earth field at the origin in NED divided by :attr:`mag_strength_gauss` (a unit vector; the MAG event
-        values are divided by the same strength).
-    mag_strength_gauss : float
-        Reference field strength [gauss]: median |m| of the log's magnetometer.
-    mag_field_source : str
-        ``"wmm"`` (World Magnetic Model at origin and date) or ``"declination_parameter"`` (no position: the
-        log's declination parameter and the measured inclination).
-    gravity_m_s2 : float
-        Local normal gravity at the origin [m/s^2] (math note 1.2).
-    gps_delay_s : float
-        GPS latency [s] (:func:`gps_measurement_time_s`).
-    gps_time_rule : str
-        How GPS measurement times were obtained (:func:`gps_measurement_time_s`); empty without GPS.
-    baro_offset_m : float
-        Barometric minus GPS altitude [m] removed from the barometer (0 without GPS).
-    output_time_s : ndarray
-        Output epochs [s].
-    source : str
-        Log name, for messages.
-    warnings : tuple of str
-    """
-
-    imu: ImuSamples
-    events: MeasurementEvents
-    origin: Origin
-    plan: SensorPlan
-    alignment: Alignment
-    mag_field_ned: np.ndarray
-    mag_strength_gauss: float
-    mag_field_source: str
-    gravity_m_s2: float
-    gps_delay_s: float
-    gps_time_rule: str
-    baro_offset_m: float
-    output_time_s: np.ndarray
-    source: str
-    warnings: tuple[str, ...] = field(default=())
 
 
 def build_replay_inputs(flight_log: FlightLog, config: EstimatorConfig | None = None, *, rate_hz: float = 50.0,
@@ -422,7 +213,7 @@ def build_replay_inputs(flight_log: FlightLog, config: EstimatorConfig | None = 
         parts.append((times, ZERO_VELOCITY, np.zeros((len(times), 3)),
                       np.full((len(times), 3), config.noise.zero_velocity_sigma_m_s ** 2)))
 
-    alignment, mag_rejection = _alignment(flight_log, imu, gps, mag, mag_field, mag_strength, sun_part, origin,
+    alignment, mag_rejection = initial_alignment(flight_log, imu, gps, mag, mag_field, mag_strength, sun_part, origin,
                                           baro, baro_offset_m, gravity, config, warnings)
     if mag_rejection is not None:
         skipped["mag"] = mag_rejection
@@ -554,20 +345,7 @@ def gps_measurement_time_s(frame: pd.DataFrame, delay_s: float, delay_source: st
     return row_time - delay_s, f"row time - {delay_s * 1000:.0f} ms ({delay_source})"
 
 
-@dataclass(frozen=True)
-class _GpsRows:
-    time_s: np.ndarray  # latency-corrected sample time [s]
-    lat_deg: np.ndarray
-    lon_deg: np.ndarray
-    alt_m: np.ndarray
-    vel_ned: np.ndarray  # (n, 3)
-    eph_m: np.ndarray
-    epv_m: np.ndarray
-    speed_sigma_m_s: np.ndarray  # NaN where not reported
-    time_rule: str  # how the measurement time was obtained
-
-
-def _gps_rows(flight_log: FlightLog, delay_s: float, delay_source: str, skipped: dict[str, str]) -> _GpsRows | None:
+def _gps_rows(flight_log: FlightLog, delay_s: float, delay_source: str, skipped: dict[str, str]) -> GpsRows | None:
     if not flight_log.has("gps"):
         skipped["gps_pos"] = skipped["gps_vel"] = "not in the log"
         return None
@@ -589,12 +367,12 @@ def _gps_rows(flight_log: FlightLog, delay_s: float, delay_source: str, skipped:
     idx = idx[np.argsort(time_s[idx], kind="stable")]
     idx = idx[_new_samples(time_s[idx])]
     speed = get("speed_accuracy_m_s")[idx]
-    return _GpsRows(time_s=time_s[idx], lat_deg=lat[idx], lon_deg=lon[idx], alt_m=alt[idx], vel_ned=vel[idx],
+    return GpsRows(time_s=time_s[idx], lat_deg=lat[idx], lon_deg=lon[idx], alt_m=alt[idx], vel_ned=vel[idx],
                     eph_m=eph[idx], epv_m=epv[idx], speed_sigma_m_s=np.where(speed > 0, speed, np.nan),
                     time_rule=time_rule)
 
 
-def _origin(flight_log: FlightLog, gps: _GpsRows | None) -> Origin:
+def _origin(flight_log: FlightLog, gps: GpsRows | None) -> Origin:
     if gps is not None:
         good = np.flatnonzero(gps.eph_m < GPS_ORIGIN_MAX_EPH_M)
         i = int(good[0]) if len(good) else 0
@@ -607,7 +385,7 @@ def _origin(flight_log: FlightLog, gps: _GpsRows | None) -> Origin:
     return Origin(math.nan, math.nan, 0.0, "none")
 
 
-def _gps_events(gps: _GpsRows, origin: Origin, config: EstimatorConfig):
+def _gps_events(gps: GpsRows, origin: Origin, config: EstimatorConfig):
     noise = config.noise
     north, east, down = environment.geodetic_to_ned(gps.lat_deg, gps.lon_deg, gps.alt_m, origin.lat_deg,
                                                     origin.lon_deg, origin.alt_m)
@@ -621,7 +399,7 @@ def _gps_events(gps: _GpsRows, origin: Origin, config: EstimatorConfig):
     return [(gps.time_s, GPS_POS, pos, pos_var), (gps.time_s, GPS_VEL, gps.vel_ned, vel_var)]
 
 
-def _baro_offset_m(baro_t: np.ndarray, baro_alt: np.ndarray, gps: _GpsRows) -> float:
+def _baro_offset_m(baro_t: np.ndarray, baro_alt: np.ndarray, gps: GpsRows) -> float:
     """Median of barometric minus GPS altitude over the first seconds with a fix (math note 3.0)."""
     window = gps.time_s <= gps.time_s[0] + BARO_OFFSET_WINDOW_S
     t = gps.time_s[window]
@@ -675,14 +453,14 @@ def _decimal_year(flight_log: FlightLog) -> float | None:
 
 
 def sun_observations_from_log(flight_log: FlightLog, origin: Origin, warnings: list[str]) -> pd.DataFrame | None:
-    """Sun-vector observations from the log's photocell currents (:func:`estimators.sun_vector.solve_sun_log`)
-    and the sun's NED direction at the origin (NREL SPA on a 1 Hz grid, :func:`estimators.sun_prediction.sun_ned_at`).
+    """Sun-vector observations from the log's photocell currents (:func:`estimators.sun.solver.solve_sun_log`)
+    and the sun's NED direction at the origin (NREL SPA on a 1 Hz grid, :func:`estimators.sun.prediction.sun_ned_at`).
 
     Returns None when the log has no GPS position or no UTC time (the ephemeris needs both). Epochs without a
     solution or with the sun below :data:`estimators.environment.MIN_SUN_ELEVATION_DEG` are dropped.
     """
-    from estimators.sun_prediction import sun_ned_at
-    from estimators.sun_vector import solve_sun_log
+    from estimators.sun.prediction import sun_ned_at
+    from estimators.sun.solver import solve_sun_log
 
     if origin.source != "gps" or flight_log.meta.utc_offset_s is None:
         warnings.append("sun heading: no GPS position or UTC time for the ephemeris; sun vector not used")
@@ -722,7 +500,7 @@ def _pseudo_times(t_start: float, t_end: float, rate_hz: float) -> np.ndarray:
     return np.arange(math.ceil(t_start * rate_hz), math.floor(t_end * rate_hz) + 1) / rate_hz
 
 
-def _airborne(times: np.ndarray, airspeed, gps: _GpsRows | None, config: EstimatorConfig) -> np.ndarray:
+def _airborne(times: np.ndarray, airspeed, gps: GpsRows | None, config: EstimatorConfig) -> np.ndarray:
     """Flying (fixed-wing models valid) at ``times``: last airspeed above the minimum, else GPS ground speed above
     V_min (math note 7.5)."""
     if airspeed is not None:
@@ -764,157 +542,3 @@ def _merge_events(parts, imu_time_s: np.ndarray) -> MeasurementEvents:
     imu_index = np.searchsorted(imu_time_s, time_s, side="left").astype(np.int64)
     return MeasurementEvents(time_s=time_s, kind=kind[order], imu_index=imu_index, values=values,
                              variances=variances)
-
-
-# ----------------------------------------------------------------------------------------------------------------
-# initial alignment (math note 5.5)
-
-
-def still_window(imu: ImuSamples, gravity_m_s2: float, config: EstimatorConfig) -> tuple[int, int] | None:
-    """Row range ``[i0, i1)`` of the first still window starting at the log start, or None.
-
-    Still means a 0.2 s moving average of the gyro below ``timing.still_gyro_rad_s`` and a specific-force norm
-    within ``timing.still_accel_m_s2`` of its median over the first second (not of g: a MEMS accelerometer's
-    zero-g offset, up to 80 mg in Table 1, would hide every still window), that median itself within
-    :data:`STILL_GRAVITY_TOLERANCE_M_S2` of gravity. The window must start within the first second and last at
-    least ``timing.still_window_s``.
-    """
-    timing = config.timing
-    t = imu.time_s
-    n_avg = min(max(1, round(0.2 / imu.median_dt_s)), len(t))
-    first_second = int(np.searchsorted(t, t[0] + 1.0, side="right"))
-    # The test runs on growing prefixes of the log: the window ends at the first moving row, usually seconds after
-    # the start. A prefix's last n_avg rows are left to the next, longer prefix (their averages need later rows).
-    rows = min(len(t), first_second + 2 * n_avg)
-    while True:
-        gyro_norm = np.linalg.norm(_moving_average(imu.gyro_rad_s[:rows], n_avg), axis=1)
-        accel_norm = np.linalg.norm(_moving_average(imu.accel_m_s2[:rows], n_avg), axis=1)
-        reference = float(np.median(accel_norm[:first_second]))
-        if abs(reference - gravity_m_s2) > STILL_GRAVITY_TOLERANCE_M_S2:
-            return None
-        still = (gyro_norm < timing.still_gyro_rad_s) & (np.abs(accel_norm - reference) < timing.still_accel_m_s2)
-        if rows < len(t):
-            still = still[:rows - n_avg]
-        start_candidates = np.flatnonzero(still[:first_second])
-        if len(start_candidates) == 0:
-            return None
-        i0 = int(start_candidates[0])
-        moving = np.flatnonzero(~still[i0:])
-        if len(moving) or rows == len(t):
-            break
-        rows = min(len(t), 2 * rows)
-    i1 = i0 + int(moving[0]) if len(moving) else len(t)
-    if t[i1 - 1] - t[i0] < timing.still_window_s:
-        return None
-    return i0, i1
-
-
-def _moving_average(values: np.ndarray, n_avg: int) -> np.ndarray:
-    """Centred moving average of the rows of ``values`` (n, k) over ``n_avg`` <= n rows: row i averages rows
-    ``i - n_avg // 2`` to ``i - n_avg // 2 + n_avg - 1``; rows whose window would leave the array hold the nearest
-    full-window average."""
-    n, half = len(values), n_avg // 2
-    cumulative = np.zeros((n + 1, values.shape[1]))
-    np.cumsum(values, axis=0, out=cumulative[1:])
-    full_windows = (cumulative[n_avg:] - cumulative[:-n_avg]) / n_avg  # row j: mean of rows j .. j + n_avg - 1
-    return full_windows[np.clip(np.arange(n) - half, 0, n - n_avg)]
-
-
-def tilt_from_specific_force(f_b: np.ndarray) -> tuple[float, float]:
-    """Roll and pitch [rad] of a vehicle at rest from its mean specific force (FRD, about (0, 0, -g) level)."""
-    roll = math.atan2(-f_b[1], -f_b[2])
-    pitch = math.atan2(f_b[0], math.hypot(f_b[1], f_b[2]))
-    return roll, pitch
-
-
-def yaw_from_magnetometer(m_b: np.ndarray, roll_rad: float, pitch_rad: float, field_ned: np.ndarray) -> float:
-    """Yaw [rad] from a body-frame vector whose NED direction ``field_ned`` is known (magnetic field or sun),
-    tilt-compensated (math note 3.2): the level-frame vector ``Ry(theta) Rx(phi) m_b`` has heading ``D - psi``
-    with D the heading of the reference vector (the declination for the magnetic field)."""
-    cr, sr = math.cos(roll_rad), math.sin(roll_rad)
-    cp, sp = math.cos(pitch_rad), math.sin(pitch_rad)
-    # Rx(phi) m, then Ry(theta)
-    y1 = cr * m_b[1] - sr * m_b[2]
-    z1 = sr * m_b[1] + cr * m_b[2]
-    x2 = cp * m_b[0] + sp * z1
-    yaw = math.atan2(field_ned[1], field_ned[0]) - math.atan2(y1, x2)
-    return math.atan2(math.sin(yaw), math.cos(yaw))
-
-
-def _alignment(flight_log: FlightLog, imu: ImuSamples, gps: _GpsRows | None, mag, mag_field: np.ndarray,
-               mag_strength: float, sun, origin: Origin, baro, baro_offset_m: float, gravity: float,
-               config: EstimatorConfig, warnings: list[str]) -> tuple[Alignment, str | None]:
-    """Initial state, and why the magnetometer must not be used (None when it is consistent)."""
-    t0 = float(imu.time_s[0])
-    window = still_window(imu, gravity, config)
-    velocity = np.zeros(3)
-    position = np.zeros(3)
-    if gps is not None:
-        i = int(np.argmin(np.abs(gps.time_s - t0)))
-        north, east, down = environment.geodetic_to_ned(gps.lat_deg[i], gps.lon_deg[i], gps.alt_m[i],
-                                                        origin.lat_deg, origin.lon_deg, origin.alt_m)
-        position = np.array([float(north), float(east), float(down)])
-    elif baro is not None:
-        position[2] = -(float(np.median(baro[1][:20, 0])) - baro_offset_m - origin.alt_m)
-    gyro_bias = np.zeros(3)
-    still_s = None
-    onboard = flight_log.streams.get("onboard_attitude")
-    if window is not None:
-        i0, i1 = window
-        roll, pitch = tilt_from_specific_force(imu.accel_m_s2[i0:i1].mean(axis=0))
-        gyro_bias = imu.gyro_rad_s[i0:i1].mean(axis=0)
-        still_s = (float(imu.time_s[i0]), float(imu.time_s[i1 - 1]))
-        tilt_source = "still_window"
-    elif onboard is not None and len(onboard) and {"qw", "qx", "qy", "qz"} <= set(onboard.columns):
-        roll, pitch, _ = _onboard_euler_at(onboard, t0)
-        tilt_source = "onboard_attitude"
-        warnings.append("no still window at the start: initial roll/pitch from the autopilot's attitude")
-    else:
-        n = max(1, round(0.5 / imu.median_dt_s))
-        roll, pitch = tilt_from_specific_force(imu.accel_m_s2[:n].mean(axis=0))
-        tilt_source = "accelerometer"
-        warnings.append("no still window at the start: initial roll/pitch from the accelerometer (in air)")
-    if window is None and gps is not None:
-        i = int(np.argmin(np.abs(gps.time_s - t0)))
-        velocity = gps.vel_ned[i].copy()
-    yaw, yaw_source = 0.0, "none"
-    mag_rejection = None
-    if mag is not None:
-        t_end = still_s[1] if still_s is not None else mag[0][0] + 0.5
-        sel = mag[0] <= max(t_end, mag[0][0])
-        m_b = mag[1][sel].mean(axis=0) / mag_strength
-        # the measured inclination must match the reference field (a wrongly calibrated or rotated
-        # magnetometer would otherwise give a confidently wrong yaw)
-        down_b = np.array([-math.sin(pitch), math.sin(roll) * math.cos(pitch), math.cos(roll) * math.cos(pitch)])
-        dip_measured = math.degrees(math.asin(float(np.clip(np.dot(m_b, down_b) / np.linalg.norm(m_b), -1, 1))))
-        dip_expected = math.degrees(math.asin(float(np.clip(mag_field[2], -1, 1))))
-        if abs(dip_measured - dip_expected) > MAG_DIP_TOLERANCE_DEG:
-            mag_rejection = (f"inclination {dip_measured:.1f} deg at the start does not match the earth field's "
-                             f"{dip_expected:.1f} deg (miscalibrated or rotated magnetometer)")
-        else:
-            yaw, yaw_source = yaw_from_magnetometer(m_b, roll, pitch, mag_field), "mag"
-    if yaw_source == "none" and sun is not None and len(sun[0]):
-        # gravity + sun (math note 5.5 "TRIAD"): the sun's horizontal direction, tilt-compensated like the field
-        t_end = still_s[1] if still_s is not None else sun[0][0] + 0.5
-        sel = sun[0] <= max(t_end, sun[0][0])
-        s_b, s_n = sun[2][sel, 0:3].mean(axis=0), sun[2][sel, 3:6].mean(axis=0)
-        if math.hypot(s_n[0], s_n[1]) > MIN_SUN_HORIZONTAL:
-            yaw, yaw_source = yaw_from_magnetometer(s_b, roll, pitch, s_n), "sun"
-    has_onboard = onboard is not None and len(onboard) and {"qw", "qx", "qy", "qz"} <= set(onboard.columns)
-    if yaw_source == "none" and has_onboard:
-        yaw, yaw_source = _onboard_euler_at(onboard, t0)[2], "onboard_attitude"
-        warnings.append("initial yaw borrowed from the autopilot's attitude (no usable magnetometer)")
-    elif (yaw_source == "none" and gps is not None
-          and np.hypot(velocity[0], velocity[1]) > config.timing.min_ground_speed_m_s):
-        yaw, yaw_source = math.atan2(velocity[1], velocity[0]), "gps_course"
-    alignment = Alignment(roll_rad=roll, pitch_rad=pitch, yaw_rad=yaw, gyro_bias_rad_s=gyro_bias,
-                          velocity_ned_m_s=velocity, position_ned_m=position, still_window_s=still_s,
-                          yaw_source=yaw_source, tilt_source=tilt_source)
-    return alignment, mag_rejection
-
-
-def _onboard_euler_at(onboard: pd.DataFrame, time_s: float) -> tuple[float, float, float]:
-    i = int(np.clip(np.searchsorted(onboard.index.to_numpy(dtype=float), time_s), 0, len(onboard) - 1))
-    q = onboard.iloc[i][["qw", "qx", "qy", "qz"]].to_numpy(dtype=float)
-    roll, pitch, yaw = quat_to_euler(q)
-    return float(roll), float(pitch), float(yaw)

@@ -9,9 +9,9 @@ between the stages, and short vectors are returned as tuples.
 
 Frames and units: NED earth frame, FRD body frame, ZYX Euler angles (roll phi, pitch theta, yaw psi) [rad], body
 rates (p, q, r) [rad/s], specific force [m/s^2] (``(0, 0, -g)`` level at rest), speeds [m/s], positions [m].
-Each stage's state is laid out in a table of :class:`~estimators.state_table.StateSpec` rows (built from the
-configuration in :mod:`estimators.three_stage`); :func:`~estimators.state_table.initial_covariance` and
-:func:`~estimators.state_table.process_noise_psd` build P0 and the continuous process-noise density from it.
+Each stage's state is laid out in a table of :class:`~estimators.core.state_table.StateSpec` rows (built from the
+configuration in :mod:`estimators.three_stage.kernel`); :func:`~estimators.core.state_table.initial_covariance` and
+:func:`~estimators.core.state_table.process_noise_psd` build P0 and the continuous process-noise density from it.
 
 Stages
 ------

@@ -6,12 +6,12 @@ error-state filter the paper's motivation points to (Sola 2017, PX4 EKF2): a nom
 kinematics at the IMU rate and a small error state estimated by the EKF, injected into the nominal and reset to
 zero after each sensor's group of scalar updates.
 
-Nominal state (:mod:`estimators.eskf_model`): position NED, ground velocity NED, attitude quaternion (body FRD ->
+Nominal state (:mod:`estimators.indirect.model`): position NED, ground velocity NED, attitude quaternion (body FRD ->
 NED), gyro bias, accelerometer bias, wind (north, east), magnetometer hard-iron bias, barometer offset, the z
 accelerometer's cross-axis sensitivities to x and y (``accel_cross_axis_states``, with GPS).
 Error state: the table :func:`error_state_table` (name, unit, initial sigma, process sigma), from which P0 and the
 random walks are built; a block is present only when it helps, exactly as in the direct filter (same sensor plan
-from :mod:`estimators.events`): accelerometer bias with ``accel_bias_states``; wind only with an airspeed sensor
+from :mod:`estimators.inputs.build`): accelerometer bias with ``accel_bias_states``; wind only with an airspeed sensor
 (math note 7.1: absent states are removed from P, not frozen); magnetometer bias only with a fused magnetometer;
 barometer offset only with barometer and GPS.
 
@@ -21,7 +21,7 @@ specific force; the covariance with the exact discrete transition ``F`` of that 
 every update, with the inputs averaged over the interval (output epochs report the last propagated covariance,
 at most one covariance interval old).
 
-Updates (math note 5.4, sequential scalar, Joseph form and gating of :func:`estimators.ekf_core.scalar_update`):
+Updates (math note 5.4, sequential scalar, Joseph form and gating of :func:`estimators.core.linalg.scalar_update`):
 baro ``h = -p_d + b_b``; GPS position ``h = p + R l_b`` and velocity ``h = v + R (omega x l_b)`` with the antenna
 lever arm ``l_b`` from ``EKF2_GPS_POS_X/Y/Z`` (or ground speed and course in ``gps_velocity_mode="paper"``);
 airspeed ``h = |v - w|``; zero sideslip ``h = e2^T R^T (v - w)`` (fixed-wing only, pseudo, ungated); magnetometer
@@ -32,7 +32,7 @@ linearised innovation ``z - h(x_hat) - H dx`` (eq 49 corrected); then ``x_hat <-
 
 Filter quantities (kernel arrays): ``x`` (NX,) nominal state, ``P`` (n, n) error covariance over the active error
 states (prior before, posterior after an update), ``nu`` innovation, ``S`` innovation variance, ``K = P H^T / S``,
-``NIS = nu^2 / S``; every scalar update is recorded (:mod:`estimators.ekf_core`). Outputs: Euler angles from the
+``NIS = nu^2 / S``; every scalar update is recorded (:mod:`estimators.core.linalg`). Outputs: Euler angles from the
 quaternion (:func:`ingest.frames.quat_to_euler`), their standard deviations ``S(Theta) P_thth S(Theta)^T``.
 """
 
@@ -44,23 +44,9 @@ import time
 import numpy as np
 from numba import njit
 
-from estimators import ekf_core, events
-from estimators import eskf_model as m
 from estimators.config import EstimatorConfig
-from estimators.ekf_core import C_DIAG, C_GPS_RESETS, C_OUTPUTS, C_REPAIRS, C_RESETS, C_UPDATES, N_SHARED_COUNTERS
-from estimators.events import (
-    AIRSPEED,
-    BARO,
-    GPS_POS,
-    GPS_VEL,
-    MAG,
-    OUTPUT,
-    SIDESLIP,
-    SUN,
-    ZERO_VELOCITY,
-    ReplayInputs,
-)
-from estimators.full_state_direct import (  # shared with the direct filter: same limits, same event handling
+from estimators.core import linalg, reacquisition, recorder
+from estimators.core.full_state import (
     EIG_FLOOR,
     MIN_VARIANCE,
     N_SHARED_PARAMS,
@@ -81,9 +67,24 @@ from estimators.full_state_direct import (  # shared with the direct filter: sam
     scalar_innovation,
     shared_params,
 )
-from estimators.results import EstimatorRun, diagnostics_frame, kernel_report, replay_details, states_frame
-from estimators.state_table import StateSpec, initial_sigmas, random_walk_psd
-from estimators.sun_vector import sun_tangent_basis, tangent_projection
+from estimators.core.recorder import C_DIAG, C_GPS_RESETS, C_OUTPUTS, C_REPAIRS, C_RESETS, C_UPDATES, N_SHARED_COUNTERS
+from estimators.core.results import EstimatorRun, diagnostics_frame, kernel_report, replay_details, states_frame
+from estimators.core.state_table import StateSpec, initial_sigmas, random_walk_psd
+from estimators.indirect import model as m
+from estimators.inputs import records
+from estimators.inputs.records import (
+    AIRSPEED,
+    BARO,
+    GPS_POS,
+    GPS_VEL,
+    MAG,
+    OUTPUT,
+    SIDESLIP,
+    SUN,
+    ZERO_VELOCITY,
+    ReplayInputs,
+)
+from estimators.sun.measurement import sun_tangent_basis, tangent_projection
 from ingest.flightlog import FlightLog
 from ingest.frames import euler_to_quat, quat_to_euler
 
@@ -107,13 +108,13 @@ GPS_LEVER_ARM_PARAMETERS = ("EKF2_GPS_POS_X", "EKF2_GPS_POS_Y", "EKF2_GPS_POS_Z"
 OUT_COLUMNS = ("time_s", *(f"x{i}" for i in range(m.NX)))
 #: Lever arm of the zero-velocity pseudo-measurement (the body origin) [m]; a global, compiled in as a constant.
 _NO_LEVER_M = np.zeros(3)
-#: Nominal-state names (report), in the order of :mod:`estimators.eskf_model`.
+#: Nominal-state names (report), in the order of :mod:`estimators.indirect.model`.
 NOMINAL_NAMES = ("pn", "pe", "pd", "vn", "ve", "vd", "qw", "qx", "qy", "qz", "bgx", "bgy", "bgz", "bax", "bay",
                  "baz", "wn", "we", "bmx", "bmy", "bmz", "bb", "kzx", "kzy")
 
 
 def error_state_table(config: EstimatorConfig, *, absolute_yaw: bool) -> tuple[StateSpec, ...]:
-    """All error states in the order of :mod:`estimators.eskf_model` (``E_*``); P0 and the walks come from here.
+    """All error states in the order of :mod:`estimators.indirect.model` (``E_*``); P0 and the walks come from here.
 
     Parameters
     ----------
@@ -147,7 +148,7 @@ def error_state_table(config: EstimatorConfig, *, absolute_yaw: bool) -> tuple[S
     return tuple(rows)
 
 
-def active_error_states(config: EstimatorConfig, plan: events.SensorPlan) -> np.ndarray:
+def active_error_states(config: EstimatorConfig, plan: records.SensorPlan) -> np.ndarray:
     """Indices (into :func:`error_state_table`) of the error states estimated for a sensor plan."""
     active = np.zeros(m.NE, dtype=bool)
     active[:m.E_BA] = True  # dp, dv, dtheta, db_g
@@ -182,9 +183,9 @@ def attitude_matrices(roll_rad, pitch_rad):
 
 @njit(cache=True)
 def measurement(x, kind, comp, values, field, lever_b, gyro, H):
-    """Predicted scalar ``h`` and its row ``H`` over all NE error states (:mod:`estimators.eskf_model`).
+    """Predicted scalar ``h`` and its row ``H`` over all NE error states (:mod:`estimators.indirect.model`).
 
-    ``kind``/``comp`` as in :mod:`estimators.events` (GPS_VEL components 3/4: ground speed and course, paper
+    ``kind``/``comp`` as in :mod:`estimators.inputs.build` (GPS_VEL components 3/4: ground speed and course, paper
     mode; SUN components 0..2: body axes, projected on the tangent plane by the caller); ``values`` the event's
     value row (SUN: NED sun vector in 3..5); ``field`` the unit earth field NED; ``lever_b`` the GPS antenna
     position [m] body; ``gyro`` the current IMU rate [rad/s].
@@ -214,13 +215,13 @@ def measurement(x, kind, comp, values, field, lever_b, gyro, H):
 def _flush_covariance(P, x_cov, acc, imu_psd, walk_psd, sel, min_var, max_var, mean_input, F_full, F_work, F_values,
                       F_cols, F_counts, Q_dyn, work, counters):
     """Propagate P over the accumulated interval ``acc[0]`` with the mean inputs ``acc[1:7] / acc[0]``, from the
-    nominal ``x_cov`` at its start (:func:`estimators.ekf_core.propagate_sparse`, then
-    :func:`estimators.eskf_model.add_process_noise`); variance limits every
+    nominal ``x_cov`` at its start (:func:`estimators.core.linalg.propagate_sparse`, then
+    :func:`estimators.indirect.model.add_process_noise`); variance limits every
     time, the positive-definiteness repair every ``PD_CHECK_EVERY`` propagations (as the direct filter).
     ``imu_psd`` (2, 3): squared gyro and accelerometer noise densities; ``walk_psd`` (n,): squared random-walk
     densities of the active states; ``F_full`` the (NE, NE) transition, kept at the identity off its blocks;
-    scratch: ``mean_input`` (2, 3), ``F_work`` (:func:`estimators.eskf_model.transition_work`), the sparse dynamic
-    rows ``F_values``, ``F_cols``, ``F_counts`` (:func:`estimators.ekf_core.sparse_rows`), ``Q_dyn``
+    scratch: ``mean_input`` (2, 3), ``F_work`` (:func:`estimators.indirect.model.transition_work`), the sparse dynamic
+    rows ``F_values``, ``F_cols``, ``F_counts`` (:func:`estimators.core.linalg.sparse_rows`), ``Q_dyn``
     (N_DYNAMIC, N_DYNAMIC) and ``work`` (n, n)."""
     dt = acc[0]
     for i in range(3):
@@ -228,11 +229,11 @@ def _flush_covariance(P, x_cov, acc, imu_psd, walk_psd, sel, min_var, max_var, m
         mean_input[1, i] = acc[4 + i] / dt
     m.transition(x_cov, mean_input[0], mean_input[1], dt, F_full, F_work)
     m.process_noise(F_full, imu_psd[0], imu_psd[1], dt, Q_dyn)
-    ekf_core.sparse_rows(F_full, sel, F_values, F_cols, F_counts)
-    ekf_core.propagate_sparse(P, F_values, F_cols, F_counts, work)
+    linalg.sparse_rows(F_full, sel, F_values, F_cols, F_counts)
+    linalg.propagate_sparse(P, F_values, F_cols, F_counts, work)
     m.add_process_noise(P, Q_dyn, walk_psd, dt)
     counters[C_FLUSHES] += 1
-    if ekf_core.scheduled_repair(P, min_var, max_var, work, EIG_FLOOR, counters[C_FLUSHES], PD_CHECK_EVERY):
+    if linalg.scheduled_repair(P, min_var, max_var, work, EIG_FLOOR, counters[C_FLUSHES], PD_CHECK_EVERY):
         counters[C_REPAIRS] += 1
     for i in range(7):
         acc[i] = 0.0
@@ -247,7 +248,7 @@ def reset_to_gps(x, P, kind, values, variances, field, lever_b, gyro, sel, move_
 
     ``move_wind`` (wind states active and the last airspeed update accepted): the wind moves with the ground
     velocity, ``w += v - h_v(x_old)`` (north, east), keeping the air-relative velocity the airspeed agreed with
-    (as :func:`estimators.full_state_direct.reset_to_gps`); then ``e' = T e + G n``, ``P <- T P T^T + G R G^T``.
+    (as :func:`estimators.direct.kernel.reset_to_gps`); then ``e' = T e + G n``, ``P <- T P T^T + G R G^T``.
     ``H`` (NE,), ``block`` (3, 3), ``T`` and ``work`` (n, n) scratch.
     """
     if kind == GPS_POS:
@@ -256,7 +257,7 @@ def reset_to_gps(x, P, kind, values, variances, field, lever_b, gyro, sel, move_
             for b in range(3):
                 block[a, b] = 0.0
             block[a, a] = variances[a]
-        ekf_core.reset_covariance_block(P, m.E_P, block)
+        linalg.reset_covariance_block(P, m.E_P, block)
         return
     n = sel.shape[0]
     aw = -1
@@ -277,7 +278,7 @@ def reset_to_gps(x, P, kind, values, variances, field, lever_b, gyro, sel, move_
     for c in range(3):
         for k in range(n):
             T[m.E_V + c, k] = 0.0
-    ekf_core.transform_covariance(P, T, work)
+    linalg.transform_covariance(P, T, work)
     for c in range(3):
         P[m.E_V + c, m.E_V + c] += variances[c]
         if move_wind and c < 2:
@@ -288,12 +289,12 @@ def reset_to_gps(x, P, kind, values, variances, field, lever_b, gyro, sel, move_
 
 @njit(cache=True)
 def _healthy(x, P, zero_error):
-    """Finite nominal state, and a finite covariance with positive variances (``ekf_core.is_healthy`` on the
+    """Finite nominal state, and a finite covariance with positive variances (``linalg.is_healthy`` on the
     reset error state ``zero_error``)."""
     for i in range(x.shape[0]):
         if not math.isfinite(x[i]):
             return False
-    return ekf_core.is_healthy(zero_error, P)
+    return linalg.is_healthy(zero_error, P)
 
 
 @njit(cache=True)
@@ -312,15 +313,15 @@ def run_kernel(imu_t, imu_gyro, imu_accel, ev_t, ev_kind, ev_imu, ev_val, ev_var
     Parameters
     ----------
     imu_t, imu_gyro, imu_accel : ndarrays (N,), (N, 3), (N, 3)
-        IMU rows (:class:`estimators.events.ImuSamples`).
+        IMU rows (:class:`estimators.inputs.records.ImuSamples`).
     ev_t, ev_kind, ev_imu, ev_val, ev_var : ndarrays
-        Events (:class:`estimators.events.MeasurementEvents`).
+        Events (:class:`estimators.inputs.records.MeasurementEvents`).
     x0 : ndarray (NX,)
         Initial nominal state.
     P0 : ndarray (n, n)
         Initial covariance of the active error states.
     sel : int64 (n,)
-        Active error states (indices ``E_*`` of :mod:`estimators.eskf_model`), increasing.
+        Active error states (indices ``E_*`` of :mod:`estimators.indirect.model`), increasing.
     params : float64 (N_PARAMS,)
         Scalars (``P_*`` slots).
     gates : float64 (9,)
@@ -376,7 +377,7 @@ def run_kernel(imu_t, imu_gyro, imu_accel, ev_t, ev_kind, ev_imu, ev_val, ev_var
     paper_vel = params[P_PAPER_VEL] > 0.5
     inject_scalar = params[P_INJECT_SCALAR] > 0.5
     vmin = params[P_VMIN]
-    gps_mon = ekf_core.gps_monitor()
+    gps_mon = reacquisition.gps_monitor()
     air_ok = False  # the last airspeed update was accepted (reset_to_gps)
     wind_active = False
     for a in range(n):
@@ -398,7 +399,7 @@ def run_kernel(imu_t, imu_gyro, imu_accel, ev_t, ev_kind, ev_imu, ev_val, ev_var
                     x_cov[:] = x
                 step = t_next - t
                 m.propagate_nominal(x, gyro, accel, step, g)
-                ekf_core.accumulate_inputs(acc, step, gyro, accel)
+                linalg.accumulate_inputs(acc, step, gyro, accel)
                 t = t_next
                 if acc[0] >= cov_dt * (1.0 - 1e-9):
                     _flush_covariance(P, x_cov, acc, imu_psd, walk_psd, sel, min_var, max_var, mean_input, F_full,
@@ -432,7 +433,7 @@ def run_kernel(imu_t, imu_gyro, imu_accel, ev_t, ev_kind, ev_imu, ev_val, ev_var
             is_gps = kind in (GPS_POS, GPS_VEL)
             if is_gps:
                 # (re)acquisition (math note 2.3): position and velocity to the GPS, see reset_to_gps
-                reset, counted = ekf_core.gps_reset_due(gps_mon, kind == GPS_POS, t, params[P_GPS_REJECT_S],
+                reset, counted = reacquisition.gps_reset_due(gps_mon, kind == GPS_POS, t, params[P_GPS_REJECT_S],
                                                         params[P_GPS_OUTAGE_S])
                 if reset:
                     reset_to_gps(x, P, kind, values, ev_var[j], field, lever, gyro, sel, air_ok and wind_active,
@@ -465,11 +466,11 @@ def run_kernel(imu_t, imu_gyro, imu_accel, ev_t, ev_kind, ev_imu, ev_val, ev_var
                     nu -= H_full[i] * dx[i]
                 for a in range(n):
                     H[a] = H_full[sel[a]]
-                accepted, s_var, nis = ekf_core.scalar_update(P, H, nu, r_var, gate, dx_r, ph)
+                accepted, s_var, nis = linalg.scalar_update(P, H, nu, r_var, gate, dx_r, ph)
                 counters[C_UPDATES] += 1
-                ekf_core.record_update(diag_f, diag_i, counters, t, kind, c, nu, s_var, nis, accepted)
+                recorder.record_update(diag_f, diag_i, counters, t, kind, c, nu, s_var, nis, accepted)
                 if is_gps:
-                    ekf_core.gps_record(gps_mon, kind == GPS_POS, c, t, accepted)
+                    reacquisition.gps_record(gps_mon, kind == GPS_POS, c, t, accepted)
                 elif kind == AIRSPEED:
                     air_ok = accepted
                 if accepted:
@@ -539,13 +540,13 @@ def run(flight_log: FlightLog, inputs: ReplayInputs, config: EstimatorConfig, *,
     flight_log : FlightLog
         The log (its parameters give the GPS lever arm).
     inputs : ReplayInputs
-        From :func:`estimators.events.build_replay_inputs`.
+        From :func:`estimators.inputs.build.build_replay_inputs`.
     config : EstimatorConfig
     inject : {"group", "scalar"}
         Inject the error estimate and reset after each sensor's group of scalar updates (default, the paper's
         Alg. 3) or after every scalar (re-linearised, math note 5.4 flag).
     backend : {"numba", "numpy"}
-        Compiled kernel or the plain-NumPy twin :mod:`estimators.eskf_numpy` (slow; tests only).
+        Compiled kernel or the plain-NumPy twin :mod:`estimators.indirect.reference` (slow; tests only).
     """
     started = time.perf_counter()
     k = kernel_inputs(inputs, config, flight_log, inject=inject)
@@ -554,7 +555,7 @@ def run(flight_log: FlightLog, inputs: ReplayInputs, config: EstimatorConfig, *,
     n_out = ev.count(OUTPUT)
     out_f = np.full((n_out, len(OUT_COLUMNS)), np.nan)
     out_sd = np.full((n_out, n + 3), np.nan)
-    diag_f, diag_i = ekf_core.diagnostics_arrays(diagnostics_capacity(ev))
+    diag_f, diag_i = recorder.diagnostics_arrays(diagnostics_capacity(ev))
     counters = np.zeros(N_COUNTERS, dtype=np.int64)
     args = (imu.time_s, imu.gyro_rad_s, imu.accel_m_s2, ev.time_s, ev.kind, ev.imu_index, ev.values, ev.variances,
             k["x0"], k["P0"], k["sel"], k["params"], k["gates"], k["rw_psd"], k["min_var"], k["max_var"], out_f,
@@ -563,7 +564,7 @@ def run(flight_log: FlightLog, inputs: ReplayInputs, config: EstimatorConfig, *,
     if backend == "numba":
         x_final, _ = run_kernel(*args)
     elif backend == "numpy":
-        from estimators.eskf_numpy import run_reference
+        from estimators.indirect.reference import run_reference
 
         x_final, _ = run_reference(*args)
     else:

@@ -3,9 +3,9 @@ kernel, run by the equivalence test).
 
 The model is written in matrix form straight from math note 5.3-5.4 (rotation matrices and rotation vectors from
 :class:`scipy.spatial.transform.Rotation`, Hamilton products as 4 x 4 matrices, blocks assigned by slices),
-independently of the scalar-unrolled numba functions of :mod:`estimators.eskf_model`; the EKF algebra is the
-NumPy twin shared with the direct filter (:mod:`estimators.full_state_direct_numpy`). The event loop mirrors
-:func:`estimators.full_state_indirect.run_kernel` step for step (same propagation splitting, same covariance
+independently of the scalar-unrolled numba functions of :mod:`estimators.indirect.model`; the EKF algebra is the
+NumPy twin shared with the direct filter (:mod:`estimators.direct.reference`). The event loop mirrors
+:func:`estimators.indirect.kernel.run_kernel` step for step (same propagation splitting, same covariance
 schedule, same group accumulation and injection), so both produce the same trajectory to round-off.
 """
 
@@ -16,11 +16,20 @@ import math
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from estimators import eskf_model as m
-from estimators.ekf_core import C_GPS_RESETS, C_OUTPUTS, C_REPAIRS, C_RESETS
-from estimators.events import AIRSPEED, BARO, GPS_POS, GPS_VEL, MAG, OUTPUT, SIDESLIP, SUN, ZERO_VELOCITY
-from estimators.full_state_direct import PD_CHECK_EVERY
-from estimators.full_state_direct_numpy import (
+from estimators.core.full_state import (
+    P_COV_DT,
+    P_FIELD,
+    P_G,
+    P_GPS_OUTAGE_S,
+    P_GPS_REJECT_S,
+    P_NA2,
+    P_NG2,
+    P_PAPER_VEL,
+    P_VMIN,
+    PD_CHECK_EVERY,
+)
+from estimators.core.recorder import C_GPS_RESETS, C_OUTPUTS, C_REPAIRS, C_RESETS
+from estimators.direct.reference import (
     GpsMonitor,
     components,
     healthy,
@@ -31,20 +40,9 @@ from estimators.full_state_direct_numpy import (
     skew,
     tangent_basis,
 )
-from estimators.full_state_indirect import (
-    C_FLUSHES,
-    P_COV_DT,
-    P_FIELD,
-    P_G,
-    P_GPS_OUTAGE_S,
-    P_GPS_REJECT_S,
-    P_INJECT_SCALAR,
-    P_LEVER,
-    P_NA2,
-    P_NG2,
-    P_PAPER_VEL,
-    P_VMIN,
-)
+from estimators.indirect import model as m
+from estimators.indirect.kernel import C_FLUSHES, P_INJECT_SCALAR, P_LEVER
+from estimators.inputs.records import AIRSPEED, BARO, GPS_POS, GPS_VEL, MAG, OUTPUT, SIDESLIP, SUN, ZERO_VELOCITY
 
 P_, V_, Q_, BG_, BA_, W_, BM_, KZ_ = (slice(m.X_P, m.X_P + 3), slice(m.X_V, m.X_V + 3), slice(m.X_Q, m.X_Q + 4),
                                       slice(m.X_BG, m.X_BG + 3), slice(m.X_BA, m.X_BA + 3), slice(m.X_W, m.X_W + 2),
@@ -108,7 +106,7 @@ def propagate(x, gyro, accel, dt, g):
 
 
 def transition_and_noise(x, gyro, accel, dt, ng2, na2, rw_psd):
-    """F of one step (blocks of :func:`estimators.eskf_model.transition`) and Q = G Sigma G^T + diag(K^2) dt."""
+    """F of one step (blocks of :func:`estimators.indirect.model.transition`) and Q = G Sigma G^T + diag(K^2) dt."""
     K = cross_axis(x)
     omega, f = gyro - x[BG_], K @ (accel - x[BA_])
     R, R_half = rotation(x[Q_]), exp_so3(omega * dt / 2)
@@ -218,7 +216,7 @@ def reset_to_gps(x, P, kind, values, variances, field, lever, gyro, sel, move_wi
 
 def run_reference(imu_t, imu_gyro, imu_accel, ev_t, ev_kind, ev_imu, ev_val, ev_var, x0, P0, sel, params, gates,
                   rw_psd, min_var, max_var, out_f, out_sd, diag_f, diag_i, counters):
-    """Same signature and outputs as :func:`estimators.full_state_indirect.run_kernel`."""
+    """Same signature and outputs as :func:`estimators.indirect.kernel.run_kernel`."""
     n = len(sel)
     x, P, x_safe = x0.copy(), P0.copy(), x0.copy()
     g, cov_dt, field, lever = params[P_G], params[P_COV_DT], params[P_FIELD:P_FIELD + 3], params[P_LEVER:P_LEVER + 3]

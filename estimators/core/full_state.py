@@ -1,0 +1,141 @@
+"""Pieces shared by the two full-state filters (docs/estimators.md, 'Full-state filters'): the shared kernel
+parameter slots, variance limits, measurement component ranges and innovations, gates per event kind, the
+diagnostics capacity and the accelerometer-bias degradations.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from estimators.config import EstimatorConfig
+from estimators.core import rotations
+from estimators.inputs import records
+from estimators.inputs.records import (
+    AIRSPEED,
+    BARO,
+    GPS_POS,
+    GPS_VEL,
+    MAG,
+    SIDESLIP,
+    SUN,
+    ReplayInputs,
+)
+
+# parameter array slots (0 .. N_SHARED_PARAMS - 1 are shared with the indirect filter, see shared_params)
+P_G = 0  # gravity [m/s^2]
+P_NG2 = 1  # gyro noise density^2 [(rad/s)^2/Hz]
+P_NA2 = 2  # accel noise density^2 [(m/s^2)^2/Hz]
+P_COV_DT = 3  # covariance propagation interval [s]
+P_FIELD = 4  # 4, 5, 6: unit earth field NED
+P_GPS_REJECT_S = 7  # a GPS component rejected this long -> position/velocity reset [s]
+P_GPS_OUTAGE_S = 8  # GPS back after an outage this long -> position/velocity reset [s]
+P_VMIN = 9  # minimum ground speed for course updates [m/s]
+P_PAPER_VEL = 10  # 1: GPS velocity as ground speed and course
+N_SHARED_PARAMS = 11
+#: Variance floor of every state (keeps P positive definite).
+MIN_VARIANCE = 1e-12
+#: Smallest eigenvalue kept by a covariance repair.
+EIG_FLOOR = 1e-12
+#: The full positive-definiteness test (Cholesky) runs every this many covariance propagations; the variance
+#: limits every time.
+PD_CHECK_EVERY = 10
+
+
+@njit(cache=True)
+def component_range(kind, values, paper_vel, vmin):
+    """First and last+1 component of an event (GPS velocity in paper mode: ground speed and course, none when
+    the GPS ground speed is below ``vmin``)."""
+    if kind in (BARO, AIRSPEED, SIDESLIP):
+        return 0, 1
+    if kind == SUN:
+        return 0, 2
+    if kind == GPS_VEL and paper_vel:
+        if math.hypot(values[0], values[1]) < vmin:
+            return 3, 3
+        return 3, 5
+    return 0, 3
+
+
+@njit(cache=True)
+def measured_value(kind, comp, values, variances):
+    """Measured value ``z`` and variance ``R`` of a scalar component (paper-mode ground speed/course derived
+    from the NED velocity, eq 9 corrected: sigma_chi = sigma_V / V_g)."""
+    if kind == GPS_VEL and comp >= 3:
+        vg = math.hypot(values[0], values[1])
+        if comp == 3:
+            return vg, variances[0]
+        return math.atan2(values[1], values[0]), variances[0] / (vg * vg)
+    return values[comp], variances[comp]
+
+
+@njit(cache=True)
+def scalar_innovation(kind, comp, values, variances, h):
+    """Innovation ``nu = z - h`` (the course wrapped to [-pi, pi)) and variance ``R`` of a scalar component
+    whose prediction is ``h`` (both full-state filters)."""
+    z, r_var = measured_value(kind, comp, values, variances)
+    nu = z - h
+    if kind == GPS_VEL and comp == 4:
+        nu = rotations.wrap_pi(nu)
+    return nu, r_var
+
+
+def shared_params(inputs: ReplayInputs, config: EstimatorConfig, n_params: int) -> np.ndarray:
+    """The kernel parameter array of a full-state filter (length ``n_params``) with the slots both filters share
+    (``P_G`` .. ``P_PAPER_VEL``, the first :data:`N_SHARED_PARAMS`) filled; the rest zero."""
+    params = np.zeros(n_params)
+    params[P_G] = inputs.gravity_m_s2
+    params[P_NG2] = config.noise.gyro_noise_rad_s_sqrt_hz ** 2
+    params[P_NA2] = config.noise.accel_noise_m_s2_sqrt_hz ** 2
+    params[P_COV_DT] = 1.0 / config.timing.covariance_rate_hz
+    params[P_FIELD:P_FIELD + 3] = inputs.mag_field_ned
+    params[P_GPS_REJECT_S] = config.timing.gps_reset_after_s
+    params[P_GPS_OUTAGE_S] = config.timing.gps_outage_reset_s
+    params[P_VMIN] = config.timing.min_ground_speed_m_s
+    params[P_PAPER_VEL] = 1.0 if config.gps_velocity_mode == "paper" else 0.0
+    return params
+
+
+def shared_settings(inputs: ReplayInputs, config: EstimatorConfig) -> dict:
+    """The kernel settings both full-state filters share, as keyword arguments of their settings NamedTuples
+    (``DirectSettings``, ``IndirectSettings``): gravity [m/s^2], IMU white-noise PSDs, covariance interval [s], unit
+    earth field NED [-], GPS re-acquisition times [s], minimum ground speed for course updates [m/s], the paper's
+    GPS-velocity mode, the gate per event kind and the schedule (:func:`estimators.core.schedule.build_schedule`
+    runs once per filter run, outside the kernel)."""
+    return {
+        "gravity_m_s2": float(inputs.gravity_m_s2),
+        "gyro_psd": float(config.noise.gyro_noise_rad_s_sqrt_hz ** 2),
+        "accel_psd": float(config.noise.accel_noise_m_s2_sqrt_hz ** 2),
+        "covariance_dt_s": 1.0 / config.timing.covariance_rate_hz,
+        "field_ned": np.asarray(inputs.mag_field_ned, dtype=float).copy(),
+        "gps_reject_s": float(config.timing.gps_reset_after_s),
+        "gps_outage_s": float(config.timing.gps_outage_reset_s),
+        "min_ground_speed_m_s": float(config.timing.min_ground_speed_m_s),
+        "paper_gps_velocity": config.gps_velocity_mode == "paper",
+        "gates": gates_per_kind(config),
+    }
+
+
+def gates_per_kind(config: EstimatorConfig) -> np.ndarray:
+    """Scalar gate per event kind (:mod:`estimators.inputs.build` codes) from ``config.gates``; pseudo-measurements and
+    outputs ungated (inf)."""
+    gate_cfg = config.gates
+    gates = np.full(len(records.SENSOR_NAMES), math.inf)
+    gates[BARO], gates[AIRSPEED], gates[GPS_POS] = gate_cfg.baro, gate_cfg.airspeed, gate_cfg.gps_pos
+    gates[GPS_VEL], gates[MAG], gates[SUN] = gate_cfg.gps_vel, gate_cfg.mag, gate_cfg.sun
+    return gates
+
+
+def accel_bias_degradations(plan: records.SensorPlan, estimated: bool, configured: bool) -> tuple[str, ...]:
+    """The sensor plan's degradations, plus the accelerometer bias left out without GPS (math note 7.3)."""
+    extra = () if estimated or not configured else (
+        "no GPS: accelerometer bias not estimated (no absolute velocity reference)",)
+    return (*plan.degradations, *extra)
+
+
+def diagnostics_capacity(ev: records.MeasurementEvents) -> int:
+    """Upper bound of the number of scalar updates of a run."""
+    per_kind = np.array([1, 1, 1, 3, 3, 3, 2, 3, 0])
+    return int(per_kind[ev.kind].sum())
