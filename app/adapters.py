@@ -23,10 +23,10 @@ import pandas as pd
 import streamlit as st
 
 from app import comparison, runs, samples, tables
-from app.commands.calibrate import local_gravity, tau_replay
 from app.comparison import Comparison, gps_origin
 from app.loading import load_log
 from app.workspace import LogEntry, Workspace
+from calib.bias import local_gravity
 from calib.calibration import Calibration, FirSettings, allan_curves, calibrate, sensor_samples, with_tau
 from calib.export import calibration_to_dict, read_calibration
 from calib.fir import design_fir, edge_slice, zero_phase_lowpass
@@ -41,6 +41,7 @@ from calib.segments import (
     user_segment,
 )
 from calib.tau import TauSelection, choose_tau, user_tau
+from estimators.calibration_replay import tau_replay
 from estimators.environment import geodetic_to_ned
 from estimators.sun.prediction import sun_vector_table
 from ingest import FlightLog
@@ -227,8 +228,8 @@ def allan(root: str, sha256: str, window: tuple[float, float] | None, fir: FirRo
 @st.cache_data(max_entries=8, show_spinner="Replaying the three-stage estimator for every candidate tau ...")
 def auto_tau(root: str, sha256: str, window: tuple[float, float] | None, fir: FirRows, noise: str,
              method: str) -> TauSelection:
-    """Tau chosen by replaying the three-stage estimator (:func:`calib.tau.choose_tau` with the ``calibrate``
-    command's replay), with the evidence curves."""
+    """Tau chosen by replaying the three-stage estimator (:func:`calib.tau.choose_tau` with
+    :func:`estimators.calibration_replay.tau_replay`, as the ``calibrate`` command does), with the evidence curves."""
     cal = calibration(root, sha256, window, fir, noise)
     return choose_tau(tau_replay(stored_log(root, sha256), cal), method=method)
 

@@ -6,6 +6,7 @@
   perpendicular to it mixes horizontal accelerometer bias with attitude error and is reported, not attributed.
 * in flight: the bias states of the full-state filters, averaged after convergence (passed in by the caller, since
   calib does not run the estimators).
+* the g they are referenced to: :func:`local_gravity`, WGS-84 normal gravity at the log's median GPS fix.
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ from calib.segments import ACCEL_COLUMNS, GYRO_COLUMNS, STANDARD_GRAVITY_M_S2, S
 from ingest.errors import InputError
 from ingest.flightlog import FlightLog
 from ingest.frames import quat_to_matrix
+from ingest.geodesy import local_gravity_m_s2
 
 Vector3 = tuple[float, float, float]
 
@@ -40,6 +42,18 @@ class GravityReference:
 
 #: Used when the caller gives no local gravity (differs from local g by up to ~0.03 m/s^2).
 STANDARD_GRAVITY = GravityReference(STANDARD_GRAVITY_M_S2, "PX4 standard gravity (no local gravity given)")
+
+
+def local_gravity(log: FlightLog) -> GravityReference:
+    """WGS-84 normal gravity at the median GPS fix of ``log``; :data:`STANDARD_GRAVITY` without a GPS fix."""
+    if not log.has("gps"):
+        return STANDARD_GRAVITY
+    gps = log["gps"][["lat_deg", "alt_m"]].dropna()
+    if gps.empty:
+        return STANDARD_GRAVITY
+    lat_deg, alt_m = float(np.median(gps["lat_deg"])), float(np.median(gps["alt_m"]))
+    return GravityReference(float(local_gravity_m_s2(lat_deg, alt_m)),
+                            f"WGS-84 normal gravity at the median GPS fix ({lat_deg:.4f} deg, {alt_m:.0f} m)")
 
 
 @dataclass(frozen=True)

@@ -49,7 +49,6 @@ from __future__ import annotations
 import json
 import math
 import os
-import tempfile
 from pathlib import Path
 from typing import Any
 
@@ -62,6 +61,7 @@ from calib.fir import FIR_WINDOW, design_fir
 from calib.segments import Segment
 from calib.tau import TauSelection
 from ingest.errors import InputError
+from ingest.files import atomic_write_text
 
 SCHEMA = "solarnav.calibration/1"
 SCHEMA_FAMILY = "solarnav.calibration/"
@@ -133,7 +133,7 @@ def calibration_from_dict(data: Any, source: str = "CALIB.json") -> Calibration:
 
 
 def write_calibration(cal: Calibration, path: str | os.PathLike) -> Path:
-    """Write ``cal`` as CALIB.json atomically (temp file + ``os.replace``); returns the path."""
+    """Write ``cal`` as CALIB.json atomically (:func:`ingest.files.atomic_write_text`); returns the path."""
     text = json.dumps(calibration_to_dict(cal), indent=2, allow_nan=False) + "\n"
     return atomic_write_text(path, text)
 
@@ -156,20 +156,6 @@ def read_calibration(path: str | os.PathLike) -> Calibration:
     except json.JSONDecodeError as exc:
         raise InputError(f"not valid JSON ({exc.msg} at line {exc.lineno})", source=str(path)) from exc
     return calibration_from_dict(data, source=str(path))
-
-
-def atomic_write_text(path: str | os.PathLike, text: str) -> Path:
-    """Write ``text`` to ``path`` through a temporary file in the same directory and ``os.replace``."""
-    path = Path(path)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8", newline="\n") as handle:
-            handle.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    return path
 
 
 # --- to dict ------------------------------------------------------------------------------------------------------

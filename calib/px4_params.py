@@ -23,8 +23,8 @@ from pathlib import Path
 import numpy as np
 
 from calib.calibration import SENSORS, Calibration, SensorCalibration
-from calib.export import atomic_write_text
 from ingest.errors import InputError
+from ingest.files import atomic_write_text
 
 #: MAV_PARAM_TYPE values used in .params files.
 PARAM_TYPE_INT32 = 6

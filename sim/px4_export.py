@@ -6,8 +6,8 @@ Topics and fields are those of PX4 >= 1.14 (``ver_data_format`` 2: float64 GPS d
 SITL ground truth ``vehicle_attitude_groundtruth``, ``vehicle_local_position_groundtruth``,
 ``vehicle_global_position_groundtruth``, and the true wind (which PX4 does not log) in
 ``solarnav_wind_groundtruth`` (``timestamp``, ``windspeed_north``, ``windspeed_east``; float32 m/s).
-Every file is written atomically (temporary file + ``os.replace``) and is a pure function of the simulation, so a
-rerun with the same seed reproduces it byte for byte.
+Every file is written atomically (:func:`ingest.files.atomic_write_bytes`) and is a pure function of the simulation,
+so a rerun with the same seed reproduces it byte for byte.
 """
 
 from __future__ import annotations
@@ -16,13 +16,13 @@ import dataclasses
 import io
 import json
 import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
 from estimators.environment import air_density_kg_m3
+from ingest.files import atomic_write_bytes
 from ingest.flightlog import FlightLog
 from sim.simulate import HARDWARE, STREAM_TOPICS, SimResult
 from sim.ulog_writer import ulog_bytes
@@ -179,18 +179,6 @@ def side_file(result: SimResult) -> dict:
     })
 
 
-def _write_atomic(path: Path, content: bytes) -> None:
-    handle, temp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(handle, "wb") as file:
-            file.write(content)
-        os.chmod(temp, 0o644)
-        os.replace(temp, path)
-    except BaseException:
-        os.unlink(temp)
-        raise
-
-
 def output_paths(directory: str | os.PathLike, name: str) -> dict[str, Path]:
     """Files of a simulation named ``name`` in ``directory``: ``ulog``, ``sun_csv``, ``device_json``, ``side_json``."""
     directory = Path(directory)
@@ -211,9 +199,9 @@ def write_outputs(result: SimResult, directory: str | os.PathLike) -> dict[str, 
     log = result.log
     topics = px4_topics(log, origin=result.truth.origin, airspeed_air_temp_c=result.airspeed_air_temp_c)
     info = {"sys_name": HARDWARE, "ver_hw": HARDWARE, "ver_data_format": 2}
-    _write_atomic(paths["ulog"], ulog_bytes(topics, info=info, parameters=log.meta.parameters))
-    _write_atomic(paths["sun_csv"], sun_csv_text(log.streams["sun"], log.meta.utc_offset_s).encode())
+    atomic_write_bytes(paths["ulog"], ulog_bytes(topics, info=info, parameters=log.meta.parameters))
+    atomic_write_bytes(paths["sun_csv"], sun_csv_text(log.streams["sun"], log.meta.utc_offset_s).encode())
     device = dataclasses.asdict(result.scenario.sensors.device)
     for path, content in ((paths["device_json"], device), (paths["side_json"], side_file(result))):
-        _write_atomic(path, (json.dumps(_jsonable(content), indent=2, sort_keys=True) + "\n").encode())
+        atomic_write_bytes(path, (json.dumps(_jsonable(content), indent=2, sort_keys=True) + "\n").encode())
     return paths

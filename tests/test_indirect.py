@@ -1,9 +1,11 @@
-"""Full-state indirect (error-state, multiplicative quaternion) filter: whole runs.
+"""Full-state indirect (error-state, multiplicative quaternion) filter: whole runs (:mod:`estimators.indirect.run`,
+:mod:`estimators.indirect.kernel`).
 
-The model functions (F, Q, every H, injection) are checked against finite differences in
+The model functions (F, Q, every H, injection) are checked against finite differences and matrix forms in
 ``tests/test_indirect_model.py``; the real-log acceptance (all logs without NaN, onboard/ground-truth agreement)
 runs for both full-state filters in ``tests/test_estimators_real_logs.py``. Here: the error-state table and the
-degraded sensor plans, accuracy and bias recovery on the exact synthetic flight, agreement with the (independently
+degraded sensor plans, the GPS reset against its matrix form, the kernel against the same source run uncompiled
+and its schedule, accuracy and bias recovery on the exact synthetic flight, agreement with the (independently
 written, Euler-angle) direct filter and between group and per-scalar injection, divergence handling, and the
 simulated paper mission against Table 2 with the mean NIS per channel.
 """
@@ -13,23 +15,42 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import os
+import subprocess
+import sys
+from pathlib import Path
 
 import numpy as np
+import pandas as pd
 import pytest
+from scipy.spatial.transform import Rotation
 
+from estimators.api import estimator_function
 from estimators.config import EstimatorConfig
-from estimators.direct import kernel as direct_kernel
+from estimators.core import recorder, schedule
+from estimators.core.full_state import diagnostics_capacity
 from estimators.evaluation import PAPER_TABLE_2, config_for_simulation, rms_errors
-from estimators.indirect import kernel as fsi
+from estimators.indirect import kernel as indirect_kernel
+from estimators.indirect import measurements as meas
 from estimators.indirect import model as m
+from estimators.indirect import run as fsi
 from estimators.inputs import build, records
+from estimators.inputs.records import GPS_POS, GPS_VEL
 from ingest import load_sun_device, with_sun
+from ingest.flightlog import FlightLog
 from ingest.frames import euler_to_matrix, quat_to_matrix
 from ingest.ulog_reader import load_flight_log
 from tests.conftest import SAMPLE_LOGS_DIR
 from tests.estimators_synthetic import synthetic_flight
 
 CONFIG = EstimatorConfig()
+TESTS_DIR = Path(__file__).resolve().parent
+REPO_DIR = TESTS_DIR.parent
+
+
+def direct_run(log, inputs, config):
+    """The direct filter, through the registry of :mod:`estimators.api`."""
+    return estimator_function("full_state_direct")(log, inputs, config)
 
 
 def _run(log, config=CONFIG, **kwargs):
@@ -71,16 +92,16 @@ def test_initial_attitude_covariance_is_the_euler_sigmas_mapped_to_body_error():
     """P0's attitude block is W diag(sigma_Euler^2) W^T: mapped back with S = W^-1 it is the Euler diagonal."""
     log = synthetic_flight(5.0, seed=2)
     inputs = build.build_replay_inputs(log, CONFIG)
-    k = fsi.kernel_inputs(inputs, CONFIG, log)
-    sel = list(k["sel"])
+    settings = fsi.kernel_settings(inputs, CONFIG, log)
+    sel = list(settings.sel)
     th = [sel.index(m.E_TH + i) for i in range(3)]
-    P_th = k["P0"][np.ix_(th, th)]
+    P_th = settings.P0[np.ix_(th, th)]
     S, W = fsi.attitude_matrices(inputs.alignment.roll_rad, inputs.alignment.pitch_rad)
     np.testing.assert_allclose(S @ W, np.eye(3), atol=1e-15)
     sigmas = np.radians([CONFIG.initial.roll_pitch_deg, CONFIG.initial.roll_pitch_deg, CONFIG.initial.yaw_deg])
     np.testing.assert_allclose(S @ P_th @ S.T, np.diag(sigmas ** 2), atol=1e-15)
     # initial quaternion is the aligned attitude
-    r_nb = quat_to_matrix(k["x0"][m.X_Q:m.X_Q + 4])
+    r_nb = quat_to_matrix(settings.x0[m.X_Q:m.X_Q + 4])
     align = inputs.alignment
     np.testing.assert_allclose(r_nb, euler_to_matrix(align.roll_rad, align.pitch_rad, align.yaw_rad), atol=1e-12)
 
@@ -104,7 +125,7 @@ def test_active_error_states_follow_the_sensor_plan(kwargs, absent):
     full = [s.name for s in fsi.error_state_table(CONFIG, absolute_yaw=True)]
     assert states == [n for n in full if n not in absent]
     # the direct filter decides the same blocks from the same plan, and reports the same
-    direct = direct_kernel.run(log, build.build_replay_inputs(log, CONFIG), CONFIG)
+    direct = direct_run(log, build.build_replay_inputs(log, CONFIG), CONFIG)
     for block_direct, block_indirect in (("bax", "dbax"), ("wn", "dwn"), ("bmx", "dbmx"), ("bb", "dbb")):
         assert (block_direct in direct.report.details["states"]) == (block_indirect in states)
     assert run.report.used == direct.report.used and run.report.skipped == direct.report.skipped
@@ -151,7 +172,7 @@ def test_agrees_with_the_direct_filter(minute_flight):
     convergence they agree to a small fraction of their own uncertainty."""
     inputs = build.build_replay_inputs(minute_flight, CONFIG)
     indirect = fsi.run(minute_flight, inputs, CONFIG).states
-    direct = direct_kernel.run(minute_flight, inputs, CONFIG).states
+    direct = direct_run(minute_flight, inputs, CONFIG).states
     t = indirect["time_s"].to_numpy()
     keep = t >= t[0] + 5.0
     for column, tol in (("roll_deg", 0.1), ("pitch_deg", 0.1), ("yaw_deg", 0.2), ("vn_m_s", 0.01),
@@ -164,28 +185,139 @@ def test_agrees_with_the_direct_filter(minute_flight):
             assert (np.abs(diff[keep]) < 0.5 * indirect[f"{column}_std"].to_numpy()[keep]).all(), column
 
 
-@pytest.mark.parametrize(("velocity_mode", "inject"), [("ned", "group"), ("paper", "scalar")])
-def test_numba_kernel_equals_numpy_twin(velocity_mode, inject):
-    """The compiled kernel and the matrix-form NumPy reference (:mod:`estimators.indirect.reference`) on 10 s of flight
-    with every sensor: same trajectory, innovations and final state to 1e-9."""
+def twin_case(name):
+    """(log, config, inject) of an uncompiled-twin case: 10 s of flight with every sensor; ``gps_step``: the GPS
+    north position jumps 20 m at 2 s, so a GPS re-acquisition reset happens (at about 7 s)."""
     log = synthetic_flight(10.0, seed=3)
-    config = EstimatorConfig(gps_velocity_mode=velocity_mode)
+    if name == "gps_step":
+        gps = log["gps"].copy()
+        later = gps.index.to_numpy() >= log["imu"].index[0] + 2.0
+        gps.loc[later, "lat_deg"] += math.degrees(20.0 / 6_378_137.0)
+        log = FlightLog(streams={**log.streams, "gps": gps}, meta=log.meta)
+    config = EstimatorConfig(gps_velocity_mode="paper" if name == "paper_scalar" else "ned")
+    return log, config, "scalar" if name == "paper_scalar" else "group"
+
+
+TWIN_SCRIPT = """
+import pickle
+import sys
+from test_indirect import twin_case
+from estimators.indirect import run as fsi
+from estimators.inputs import build
+log, config, inject = twin_case(sys.argv[2])
+run = fsi.run(log, build.build_replay_inputs(log, config), config, inject=inject)
+with open(sys.argv[1], "wb") as file:
+    pickle.dump((run.states, run.diagnostics, run.report.details["final_state"], run.report.gps_resets), file)
+"""
+
+
+@pytest.mark.parametrize("case", ["ned_group", "paper_scalar", "gps_step"])
+def test_numba_kernel_equals_uncompiled_python(tmp_path, case):
+    """The compiled kernel and the same code run as plain Python/NumPy (NUMBA_DISABLE_JIT=1, a fresh process) on
+    10 s of flight with every sensor (NED or paper GPS velocity, group or per-scalar injection, a GPS reset): same
+    trajectory, innovations and final state to 1e-9."""
+    path = tmp_path / "twin.pkl"
+    env = {**os.environ, "NUMBA_DISABLE_JIT": "1", "PYTHONPATH": os.pathsep.join([str(REPO_DIR), str(TESTS_DIR)])}
+    subprocess.run([sys.executable, "-c", TWIN_SCRIPT, str(path), case], env=env, check=True, cwd=REPO_DIR,
+                   timeout=900)
+    slow_states, slow_diag, slow_final, slow_gps_resets = pd.read_pickle(path)
+    log, config, inject = twin_case(case)
     inputs = build.build_replay_inputs(log, config)
-    fast = fsi.run(log, inputs, config, inject=inject, backend="numba")
-    slow = fsi.run(log, inputs, config, inject=inject, backend="numpy")
+    fast = fsi.run(log, inputs, config, inject=inject)
+    assert fast.report.gps_resets == slow_gps_resets == (1 if case == "gps_step" else 0)
     numeric = [c for c in fast.states.columns if c != "time_s"]
-    assert len(fast.states) == len(slow.states) == inputs.output_time_s.size
-    a, b = fast.states[numeric].to_numpy(), slow.states[numeric].to_numpy()
+    assert len(fast.states) == len(slow_states) == inputs.output_time_s.size
+    a, b = fast.states[numeric].to_numpy(), slow_states[numeric].to_numpy()
     assert np.array_equal(np.isnan(a), np.isnan(b))
     assert np.nanmax(np.abs(a - b)) < 1e-9
-    assert len(fast.diagnostics) == len(slow.diagnostics) > 0
-    for column in ("innovation", "innovation_var", "nis"):
-        assert np.nanmax(np.abs(fast.diagnostics[column] - slow.diagnostics[column])) < 1e-9
-    assert (fast.diagnostics["accepted"] == slow.diagnostics["accepted"]).all()
-    final_fast, final_slow = fast.report.details["final_state"], slow.report.details["final_state"]
-    assert max(abs(final_fast[k] - final_slow[k]) for k in final_fast) < 1e-9
-    with pytest.raises(ValueError, match="backend"):
-        fsi.run(log, inputs, config, backend="fortran")
+    assert len(fast.diagnostics) == len(slow_diag) > 0
+    for column in ("time_s", "innovation", "innovation_var", "nis"):
+        assert np.nanmax(np.abs(fast.diagnostics[column].to_numpy() - slow_diag[column].to_numpy())) < 1e-9
+    assert (fast.diagnostics["accepted"].to_numpy() == slow_diag["accepted"].to_numpy()).all()
+    final = fast.report.details["final_state"]
+    assert max(abs(final[k] - slow_final[k]) for k in final) < 1e-9
+
+
+def test_kernel_executes_the_schedule():
+    """One covariance propagation per COVARIANCE operation of the shared schedule (docs/estimators.md,
+    'Scheduling rule'), one output row per OUTPUT event, one diagnostics row per scalar update."""
+    log = synthetic_flight(5.0, seed=2)
+    inputs = build.build_replay_inputs(log, CONFIG)
+    settings = fsi.kernel_settings(inputs, CONFIG, log)
+    ev, imu = inputs.events, inputs.imu
+    op, op_dt, op_index = schedule.build_schedule(imu.time_s, ev.time_s, ev.kind, ev.imu_index,
+                                                  settings.covariance_dt_s, math.inf)
+    n_out = ev.count(records.OUTPUT)
+    n = len(settings.sel)
+    out_f, out_sd = np.full((n_out, len(indirect_kernel.OUT_COLUMNS)), np.nan), np.full((n_out, n + 3), np.nan)
+    diag_f, diag_i = recorder.diagnostics_arrays(diagnostics_capacity(ev))
+    counters = np.zeros(indirect_kernel.N_COUNTERS, dtype=np.int64)
+    indirect_kernel.run_kernel(imu.gyro_rad_s, imu.accel_m_s2, ev.kind, ev.imu_index, ev.values, ev.variances, op,
+                               op_dt, op_index, settings, out_f, out_sd, diag_f, diag_i, counters)
+    assert counters[indirect_kernel.C_FLUSHES] == np.count_nonzero(op == schedule.COVARIANCE)
+    assert counters[recorder.C_OUTPUTS] == n_out and np.isfinite(out_f).all() and np.isfinite(out_sd).all()
+    assert counters[recorder.C_DIAG] == counters[recorder.C_UPDATES] > 0
+    # the time of every propagation step adds up to the log
+    assert op_dt[op == schedule.PROPAGATE].sum() == pytest.approx(imu.time_s[-1] - imu.time_s[0], abs=1e-9)
+
+
+def _reset_to_gps_matrix_form(x, P, kind, values, variances, lever, gyro, sel, move_wind):
+    """The nominal position or velocity to the GPS (lever arm included), the block's error the GPS noise; with
+    ``move_wind`` the wind moves with the velocity (north, east): ``e' = T e + G n``, ``P' = T P T^T + G R G^T``
+    over the active error states ``sel`` (position and velocity lead them)."""
+    x, P = x.copy(), P.copy()
+    rows = []
+    for c in range(3):
+        H = np.zeros(m.NE)
+        rows.append((meas.measurement(x, kind, c, values, np.zeros(3), lever, gyro, H), H))
+    correction = values[0:3] - np.array([h for h, _ in rows])
+    dp, dv = slice(m.E_P, m.E_P + 3), slice(m.E_V, m.E_V + 3)
+    if kind == GPS_POS:
+        x[m.X_P:m.X_P + 3] += correction
+        P[dp, :] = 0.0
+        P[:, dp] = 0.0
+        P[dp, dp] = np.diag(variances[0:3])
+        return x, P
+    n = len(sel)
+    T, G = np.eye(n), np.zeros((n, 3))
+    x[m.X_V:m.X_V + 3] += correction
+    T[dv] = 0.0
+    G[dv] = np.eye(3)
+    if move_wind:
+        aw = int(np.flatnonzero(sel == m.E_W)[0])
+        x[m.X_W:m.X_W + 2] += correction[:2]
+        for c in range(2):
+            T[aw + c] -= rows[c][1][sel]
+            G[aw + c, c] = 1.0
+    return x, T @ P @ T.T + G @ np.diag(variances[0:3]) @ G.T
+
+
+@pytest.mark.parametrize(("kind", "move_wind"), [(GPS_POS, False), (GPS_VEL, False), (GPS_VEL, True)])
+def test_reset_to_gps_matches_matrix_form(kind, move_wind):
+    """GPS re-acquisition (docs/estimators.md, 'GPS re-acquisition') against its matrix form at a random state."""
+    rng = np.random.default_rng(7 + kind)
+    x = np.zeros(m.NX)
+    x[m.X_P:m.X_P + 3] = rng.normal(0.0, 50.0, 3)
+    x[m.X_V:m.X_V + 3] = rng.normal(0.0, 8.0, 3)
+    x[m.X_Q:m.X_Q + 4] = np.roll(Rotation.random(random_state=rng).as_quat(), 1)
+    x[m.X_BG:m.X_BG + 3] = rng.normal(0.0, 0.02, 3)
+    x[m.X_W:m.X_W + 2] = rng.normal(0.0, 4.0, 2)
+    sel = np.array([i for i in range(m.NE) if i not in (m.E_BB, m.E_KZ + 1)], dtype=np.int64)
+    n = len(sel)
+    root = rng.normal(size=(n, n))
+    P = root @ root.T
+    values, variances = np.r_[rng.normal(0.0, 10.0, 3), np.zeros(3)], np.r_[rng.uniform(0.1, 1.0, 3), np.zeros(3)]
+    lever, gyro = np.array([0.3, -0.1, -0.2]), rng.normal(0.0, 1.0, 3)
+    x_ref, P_ref = _reset_to_gps_matrix_form(x, P, kind, values, variances, lever, gyro, sel, move_wind)
+    x_new, P_new = x.copy(), P.copy()
+    indirect_kernel.reset_to_gps(x_new, P_new, kind, values, variances, np.zeros(3), lever, gyro, sel, move_wind,
+                                 np.zeros(m.NE), np.empty((3, 3)), np.empty((n, n)), np.empty((n, n)))
+    np.testing.assert_allclose(x_new, x_ref, rtol=1e-13, atol=1e-12)
+    np.testing.assert_allclose(P_new, P_ref, rtol=1e-11, atol=1e-11)
+    # the reset block now predicts the GPS value
+    H = np.zeros(m.NE)
+    np.testing.assert_allclose([meas.measurement(x_new, kind, c, values, np.zeros(3), lever, gyro, H)
+                                for c in range(3)], values[0:3], atol=1e-9)
 
 
 def test_group_and_scalar_injection_agree(minute_flight):

@@ -1,4 +1,7 @@
-"""Error-state model of the full-state indirect filter: F and every H against finite differences.
+"""Error-state model and measurement models of the full-state indirect filter (:mod:`estimators.indirect.model`,
+:mod:`estimators.indirect.measurements`): F, Q, the injection and every H against finite differences, and the
+scalar-unrolled kernels against readable matrix forms (docs/indirect.md, 'Process model', 'Measurement models',
+'Injection and reset') at random states.
 
 The error is defined by the right perturbation R = R_hat Exp(dtheta) (body axes); other states are additive.
 """
@@ -10,7 +13,9 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from estimators.core import linalg, rotations
+from estimators.indirect import measurements as meas
 from estimators.indirect import model as m
+from estimators.inputs.records import AIRSPEED, BARO, GPS_POS, GPS_VEL, MAG, SIDESLIP, SUN, ZERO_VELOCITY
 from ingest.frames import quat_to_matrix
 
 GRAVITY_M_S2 = 9.80665
@@ -102,8 +107,8 @@ def test_rotation_helpers_match_scipy(rng):
     np.testing.assert_allclose(rotations.rotate(q2[0], *-q2[1:], *v), r2.inv().apply(v), atol=1e-14)
     # Small-angle branch continuous with the closed form.
     tiny = np.array([3e-7, -2e-7, 1e-7])
-    np.testing.assert_allclose(quat_to_matrix(np.array(rotations.quat_exp(*tiny))), Rotation.from_rotvec(tiny).as_matrix(),
-                               atol=1e-15)
+    np.testing.assert_allclose(quat_to_matrix(np.array(rotations.quat_exp(*tiny))),
+                               Rotation.from_rotvec(tiny).as_matrix(), atol=1e-15)
 
 
 def test_right_jacobian(rng):
@@ -242,54 +247,54 @@ def _check_h(fun, x, rtol=1e-6):
 
 
 def test_h_baro(rng):
-    _check_h(m.h_baro, random_state(rng))
+    _check_h(meas.h_baro, random_state(rng))
 
 
 @pytest.mark.parametrize("axis", [0, 1, 2])
 def test_h_gps_position_with_lever_arm(rng, axis):
     lever = np.array([0.3, -0.1, -0.2])
-    _check_h(lambda x, H: m.h_gps_position(x, lever, axis, H), random_state(rng))
+    _check_h(lambda x, H: meas.h_gps_position(x, lever, axis, H), random_state(rng))
 
 
 @pytest.mark.parametrize("axis", [0, 1, 2])
 def test_h_gps_velocity_with_lever_arm(rng, axis):
     lever = np.array([0.3, -0.1, -0.2])
     gyro = rng.normal(0.0, 1.0, 3)
-    _check_h(lambda x, H: m.h_gps_velocity(x, gyro, lever, axis, H), random_state(rng))
+    _check_h(lambda x, H: meas.h_gps_velocity(x, gyro, lever, axis, H), random_state(rng))
 
 
 def test_h_ground_speed_and_course(rng):
-    _check_h(m.h_ground_speed, random_state(rng))
-    _check_h(m.h_course, random_state(rng))
+    _check_h(meas.h_ground_speed, random_state(rng))
+    _check_h(meas.h_course, random_state(rng))
 
 
 def test_h_airspeed(rng):
-    _check_h(m.h_airspeed, random_state(rng))
+    _check_h(meas.h_airspeed, random_state(rng))
 
 
 def test_h_sideslip(rng):
-    _check_h(m.h_sideslip, random_state(rng))
+    _check_h(meas.h_sideslip, random_state(rng))
 
 
 @pytest.mark.parametrize("axis", [0, 1, 2])
 def test_h_magnetometer(rng, axis):
     field = np.array([0.21, 0.01, 0.42])
-    _check_h(lambda x, H: m.h_body_vector(x, field, axis, True, H), random_state(rng))
+    _check_h(lambda x, H: meas.h_body_vector(x, field, axis, True, H), random_state(rng))
 
 
 @pytest.mark.parametrize("axis", [0, 1, 2])
 def test_h_sun(rng, axis):
     sun = np.array([0.3, 0.5, -0.81])
     sun /= np.linalg.norm(sun)
-    _check_h(lambda x, H: m.h_body_vector(x, sun, axis, False, H), random_state(rng))
+    _check_h(lambda x, H: meas.h_body_vector(x, sun, axis, False, H), random_state(rng))
 
 
 def test_h_first_order(rng):
     """Linearisation residual of the attitude-dependent models shrinks ~10x per 10x smaller error."""
     x = random_state(rng)
     field = np.array([0.21, 0.01, 0.42])
-    models = [m.h_sideslip, lambda xx, H: m.h_body_vector(xx, field, 1, True, H),
-              lambda xx, H: m.h_gps_position(xx, np.array([0.5, 0.2, -0.3]), 0, H)]
+    models = [meas.h_sideslip, lambda xx, H: meas.h_body_vector(xx, field, 1, True, H),
+              lambda xx, H: meas.h_gps_position(xx, np.array([0.5, 0.2, -0.3]), 0, H)]
     direction = rng.normal(0.0, 1.0, m.NE)
     for fun in models:
         H = np.zeros(m.NE)
@@ -301,8 +306,8 @@ def test_h_first_order(rng):
 
 
 def test_nominal_step_matches_matrix_form(rng):
-    """The scalar-unrolled step equals the matrix form of math note 5.3 (mid-interval attitude for f), with the
-    specific force f = K (accel - b_a) of the z accelerometer's cross-axis states."""
+    """The scalar-unrolled step equals the matrix form (docs/indirect.md, 'Process model': mid-interval attitude
+    for f), with the specific force f = K (accel - b_a) of the z accelerometer's cross-axis states."""
     x = random_state(rng)
     gyro = rng.normal(0.0, 2.0, 3)
     accel = rng.normal(0.0, 5.0, 3)
@@ -320,3 +325,178 @@ def test_nominal_step_matches_matrix_form(rng):
     expected_r = (r0 * Rotation.from_rotvec(omega * dt)).as_matrix()
     np.testing.assert_allclose(quat_to_matrix(out[m.X_Q:m.X_Q + 4]), expected_r, atol=1e-14)
     np.testing.assert_array_equal(out[m.X_BG:], x[m.X_BG:])
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# readable matrix forms (rotation matrices and rotation vectors from scipy, blocks assigned by slices), written
+# independently of the scalar-unrolled numba kernels and compared with them at random states
+
+P_, V_, Q_, BG_, BA_, W_, BM_, KZ_ = (slice(m.X_P, m.X_P + 3), slice(m.X_V, m.X_V + 3), slice(m.X_Q, m.X_Q + 4),
+                                      slice(m.X_BG, m.X_BG + 3), slice(m.X_BA, m.X_BA + 3), slice(m.X_W, m.X_W + 2),
+                                      slice(m.X_BM, m.X_BM + 3), slice(m.X_KZ, m.X_KZ + 2))
+DP, DV, DTH, DBG, DBA, DW, DBM, DKZ = (slice(m.E_P, m.E_P + 3), slice(m.E_V, m.E_V + 3), slice(m.E_TH, m.E_TH + 3),
+                                       slice(m.E_BG, m.E_BG + 3), slice(m.E_BA, m.E_BA + 3), slice(m.E_W, m.E_W + 2),
+                                       slice(m.E_BM, m.E_BM + 3), slice(m.E_KZ, m.E_KZ + 2))
+FIELD = np.array([0.45, 0.02, 0.89]) / np.linalg.norm([0.45, 0.02, 0.89])
+LEVER = np.array([0.3, -0.1, -0.2])
+
+
+def skew(v):
+    """[v]x, so that [v]x u = v x u."""
+    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+
+
+def rotation(q):
+    """R(q) of a (w, x, y, z) quaternion, body -> NED."""
+    return Rotation.from_quat(np.roll(q, -1)).as_matrix()
+
+
+def exp_so3(phi):
+    return Rotation.from_rotvec(phi).as_matrix()
+
+
+def quat_product(a, b):
+    """Hamilton product a (x) b = L(a) b."""
+    w, x, y, z = a
+    return np.array([[w, -x, -y, -z], [x, w, -z, y], [y, z, w, -x], [z, -y, x, w]]) @ b
+
+
+def right_jacobian(phi):
+    """J_r(phi) = I - (1 - cos a)/a^2 [phi]x + (a - sin a)/a^3 [phi]x^2."""
+    a = np.linalg.norm(phi)
+    K = skew(phi)
+    return np.eye(3) - (1.0 - np.cos(a)) / a ** 2 * K + (a - np.sin(a)) / a ** 3 * K @ K
+
+
+def cross_axis(x):
+    """K with f = K (accel - b_a): the z accelerometer's cross-axis sensitivities removed."""
+    K = np.eye(3)
+    K[2, 0:2] = -x[KZ_]
+    return K
+
+
+def transition_matrix_form(x, gyro, accel, dt, gyro_psd, accel_psd):
+    """F of one step and its input noise G diag(N^2 / dt) G^T (docs/indirect.md, 'Process model')."""
+    K = cross_axis(x)
+    omega, f = gyro - x[BG_], K @ (accel - x[BA_])
+    R, R_half = rotation(x[Q_]), exp_so3(omega * dt / 2)
+    R_mid = R @ R_half
+    a_th = -R @ skew(R_half @ f)
+    a_bg = R_mid @ skew(f) @ right_jacobian(omega * dt / 2) * dt / 2
+    a_kz = -np.outer(R_mid[:, 2], f[0:2])  # f_z = ... - k_zx f_x - k_zy f_y
+    F = np.eye(m.NE)
+    F[DP, DV] = np.eye(3) * dt
+    for block, deriv in ((DTH, a_th), (DBG, a_bg), (DBA, -R_mid @ K), (DKZ, a_kz)):
+        F[DP, block] = deriv * dt * dt / 2
+        F[DV, block] = deriv * dt
+    F[DTH, DTH] = exp_so3(omega * dt).T
+    F[DTH, DBG] = -right_jacobian(omega * dt) * dt
+    G = np.zeros((m.NE, 6))  # input noise (gyro, accel) enters as the bias errors, minus the bias rows
+    G[:m.E_BG, 0:3] = F[:m.E_BG, DBG]
+    G[:m.E_BG, 3:6] = F[:m.E_BG, DBA]
+    return F, G @ np.diag(np.r_[gyro_psd, accel_psd] / dt) @ G.T
+
+
+def measurement_matrix_form(x, kind, comp, values, field, lever, gyro):
+    """Predicted scalar and its row over the NE error states (docs/indirect.md, 'Measurement models')."""
+    R = rotation(x[Q_])
+    H = np.zeros(m.NE)
+    wind = np.r_[x[W_], 0.0]
+    if kind == BARO:
+        H[m.E_P + 2], H[m.E_BB] = -1.0, 1.0
+        return x[m.X_BB] - x[m.X_P + 2], H
+    if kind == GPS_POS:
+        H[m.E_P + comp] = 1.0
+        H[DTH] = (-R @ skew(lever))[comp]
+        return (x[P_] + R @ lever)[comp], H
+    if kind in (GPS_VEL, ZERO_VELOCITY) and comp < 3:
+        arm = lever if kind == GPS_VEL else np.zeros(3)
+        omega = gyro - x[BG_]
+        H[m.E_V + comp] = 1.0
+        H[DTH] = (-R @ skew(np.cross(omega, arm)))[comp]
+        H[DBG] = (R @ skew(arm))[comp]
+        return (x[V_] + R @ np.cross(omega, arm))[comp], H
+    if kind == GPS_VEL:  # paper mode: ground speed (3) and course (4)
+        vn, ve = x[m.X_V], x[m.X_V + 1]
+        vg2 = vn * vn + ve * ve
+        if comp == 3:
+            H[m.E_V:m.E_V + 2] = np.array([vn, ve]) / np.sqrt(vg2)
+            return np.sqrt(vg2), H
+        H[m.E_V:m.E_V + 2] = np.array([-ve, vn]) / vg2
+        return np.arctan2(ve, vn), H
+    if kind == AIRSPEED:
+        air = x[V_] - wind
+        va = np.linalg.norm(air)
+        H[DV], H[DW] = air / va, -air[:2] / va
+        return va, H
+    if kind == SIDESLIP:
+        air_b = R.T @ (x[V_] - wind)
+        H[DV], H[DTH], H[DW] = R[:, 1], skew(air_b)[1], -R[:2, 1]
+        return air_b[1], H
+    ref = field if kind == MAG else values[3:6]
+    body = R.T @ ref
+    H[DTH] = skew(body)[comp]
+    if kind == MAG:
+        H[m.E_BM + comp] = 1.0
+        return body[comp] + x[m.X_BM + comp], H
+    return body[comp], H
+
+
+def inject_matrix_form(x, dx, P):
+    """x (+) dx and P <- G P G^T with G_thth = I - [dtheta/2]x (docs/indirect.md, 'Injection and reset')."""
+    out = x.copy()
+    for xs, es in ((P_, DP), (V_, DV), (BG_, DBG), (BA_, DBA), (W_, DW), (BM_, DBM), (KZ_, DKZ)):
+        out[xs] += dx[es]
+    out[m.X_BB] += dx[m.E_BB]
+    q = quat_product(x[Q_], np.r_[np.cos(np.linalg.norm(dx[DTH]) / 2),
+                                  np.sin(np.linalg.norm(dx[DTH]) / 2) * dx[DTH] / np.linalg.norm(dx[DTH])])
+    out[Q_] = q / np.linalg.norm(q)
+    G = np.eye(len(P))
+    G[DTH, DTH] = np.eye(3) - skew(dx[DTH] / 2)
+    return out, G @ P @ G.T
+
+
+def test_transition_and_process_noise_match_matrix_form(rng):
+    x = random_state(rng)
+    gyro = rng.normal(0.0, 1.5, 3)
+    accel = np.array([0.0, 0.0, -GRAVITY_M_S2]) + rng.normal(0.0, 3.0, 3)
+    dt = 0.02
+    gyro_psd, accel_psd = np.full(3, 2e-3) ** 2, np.full(3, 0.035) ** 2
+    _, F = propagated(x, gyro, accel, dt)
+    Q_dyn = np.zeros((m.N_DYNAMIC, m.N_DYNAMIC))
+    m.process_noise(F, gyro_psd, accel_psd, dt, Q_dyn)
+    F_ref, Q_ref = transition_matrix_form(x, gyro, accel, dt, gyro_psd, accel_psd)
+    np.testing.assert_allclose(F, F_ref, rtol=1e-12, atol=1e-13)
+    np.testing.assert_allclose(Q_dyn, Q_ref[:m.N_DYNAMIC, :m.N_DYNAMIC], rtol=1e-10, atol=1e-20)
+
+
+MEASUREMENT_COMPONENTS = [(BARO, 0), (AIRSPEED, 0), (SIDESLIP, 0), *((GPS_POS, c) for c in range(3)),
+                          *((GPS_VEL, c) for c in range(5)), *((ZERO_VELOCITY, c) for c in range(3)),
+                          *((MAG, c) for c in range(3)), *((SUN, c) for c in range(3))]
+
+
+@pytest.mark.parametrize(("kind", "comp"), MEASUREMENT_COMPONENTS)
+def test_measurements_match_matrix_form(rng, kind, comp):
+    """The dispatcher :func:`estimators.indirect.measurements.measurement` and its leaf models: value and row."""
+    x = random_state(rng)
+    gyro = rng.normal(0.0, 1.0, 3)
+    values = np.zeros(6)
+    values[3:6] = Rotation.random(random_state=rng).apply([1.0, 0.0, 0.0])  # NED sun vector (SUN events)
+    H = np.full(m.NE, np.nan)
+    h = meas.measurement(x, kind, comp, values, FIELD, LEVER, gyro, H)
+    h_ref, H_ref = measurement_matrix_form(x, kind, comp, values, FIELD, LEVER, gyro)
+    assert h == pytest.approx(h_ref, rel=1e-12, abs=1e-12)
+    np.testing.assert_allclose(H, H_ref, rtol=1e-12, atol=1e-12)
+
+
+def test_injection_matches_matrix_form(rng):
+    x = random_state(rng)
+    dx = rng.normal(0.0, 0.05, m.NE)
+    root = rng.normal(size=(m.NE, m.NE))
+    P = root @ root.T
+    x_ref, P_ref = inject_matrix_form(x, dx, P)
+    x_new, dx_new, P_new = x.copy(), dx.copy(), P.copy()
+    m.inject(x_new, dx_new, P_new)
+    np.testing.assert_allclose(x_new, x_ref, rtol=1e-13, atol=1e-14)
+    np.testing.assert_allclose(P_new, P_ref, rtol=1e-12, atol=1e-12)
+    assert not dx_new.any()

@@ -9,23 +9,18 @@ with the calibrated noise, and keeps the tau that maximises the likelihood of it
 from __future__ import annotations
 
 import argparse
-from collections.abc import Callable
 
 import numpy as np
 
-from calib.bias import STANDARD_GRAVITY, GravityReference
+from calib.bias import local_gravity
 from calib.calibration import IMU_SENSORS, NOISE_CHOICES, Calibration, FirSettings, calibrate, with_tau
 from calib.export import write_calibration
 from calib.px4_params import DEFAULT_PREDICT_PERIOD_S, px4_parameters, write_px4_params
 from calib.segments import user_segment
 from calib.tables import table4
-from calib.tau import DEFAULT_TAU, TAU_METHODS, Innovations, TauSelection, choose_tau, user_tau
-from estimators.config import config_from_calibration
-from estimators.environment import local_gravity_m_s2
-from estimators.inputs.build import build_replay_inputs
-from estimators.three_stage import kernel as three_stage
+from calib.tau import DEFAULT_TAU, TAU_METHODS, TauSelection, choose_tau, user_tau
+from estimators.calibration_replay import tau_replay
 from ingest.errors import InputError
-from ingest.flightlog import FlightLog
 from ingest.ulog_reader import load_flight_log
 
 
@@ -77,36 +72,6 @@ def run(args: argparse.Namespace) -> int:
     for path in written:
         print(f"wrote {path}")
     return 0
-
-
-def local_gravity(log: FlightLog) -> GravityReference:
-    """WGS-84 normal gravity at the median GPS fix of the log; PX4's standard gravity without GPS."""
-    if not log.has("gps"):
-        return STANDARD_GRAVITY
-    gps = log["gps"][["lat_deg", "alt_m"]].dropna()
-    if gps.empty:
-        return STANDARD_GRAVITY
-    lat_deg, alt_m = float(np.median(gps["lat_deg"])), float(np.median(gps["alt_m"]))
-    return GravityReference(float(local_gravity_m_s2(lat_deg, alt_m)),
-                            f"WGS-84 normal gravity at the median GPS fix ({lat_deg:.4f} deg, {alt_m:.0f} m)")
-
-
-def tau_replay(log: FlightLog, cal: Calibration) -> Callable[[float], Innovations]:
-    """``tau -> Innovations`` of the three-stage estimator's body-y accelerometer updates (every update, gated or
-    not) on ``log`` with the noise of ``cal``: the replay :func:`calib.tau.choose_tau` needs."""
-    config = config_from_calibration(cal)
-    inputs = build_replay_inputs(log, config)
-
-    def replay(tau: float) -> Innovations:
-        run = three_stage.run(log, inputs, config, options=three_stage.ThreeStageOptions(accel_tau=tau))
-        diagnostics = run.diagnostics
-        rows = diagnostics[(diagnostics["sensor"] == "accel") & (diagnostics["component"] == "y")]
-        if rows.empty:
-            raise InputError("the three-stage replay made no accelerometer update: tau cannot be chosen "
-                             "automatically; give a number", source=log.meta.source, field="--tau")
-        return Innovations(rows["innovation"].to_numpy(dtype=float), rows["innovation_var"].to_numpy(dtype=float))
-
-    return replay
 
 
 def format_summary(cal: Calibration) -> str:

@@ -5,8 +5,6 @@ re-run the estimators on a log and write their states (one row per estimator per
 from __future__ import annotations
 
 import argparse
-import os
-import tempfile
 from pathlib import Path
 
 import pandas as pd
@@ -17,6 +15,7 @@ from estimators.api import DEFAULT_ESTIMATORS, ESTIMATORS, ReplayResult, parse_e
 from estimators.config import EstimatorConfig, config_from_calibration
 from estimators.inputs.records import HEADING_SOURCES
 from ingest.errors import InputError
+from ingest.files import atomic_write
 from ingest.sun_log import load_sun_device, with_sun
 from ingest.ulog_reader import load_flight_log
 
@@ -77,25 +76,20 @@ def _checked_path(path: str, option: str) -> Path:
 
 
 def write_table(frame: pd.DataFrame, path: Path) -> Path:
-    """Write ``frame`` as Parquet or CSV (by suffix) atomically: a temporary file beside ``path``, then rename.
+    """Write ``frame`` as Parquet or CSV (by suffix) atomically (:func:`ingest.files.atomic_write`).
 
     Parquet dictionary-encodes only the categorical columns (tried on every float column, it costs time and saves
     nothing). CSV is written by Arrow, ten times faster than pandas on long float tables: numbers in their shortest
     round-trip form (``20`` for 20.0), strings quoted, missing values empty, booleans ``true``/``false``.
     """
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    os.close(fd)
-    try:
+    def write(temp: Path) -> None:
         if path.suffix.lower() == ".parquet":
             categorical = [name for name, dtype in frame.dtypes.items() if isinstance(dtype, pd.CategoricalDtype)]
-            frame.to_parquet(tmp, index=False, use_dictionary=categorical)
+            frame.to_parquet(temp, index=False, use_dictionary=categorical)
         else:
-            pyarrow.csv.write_csv(pyarrow.Table.from_pandas(frame, preserve_index=False), tmp)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    return path
+            pyarrow.csv.write_csv(pyarrow.Table.from_pandas(frame, preserve_index=False), temp)
+
+    return atomic_write(path, write)
 
 
 def format_summary(result: ReplayResult, outputs: list[Path]) -> str:

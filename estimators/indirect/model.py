@@ -1,6 +1,8 @@
-"""Model of the full-state indirect filter: nominal kinematics, error-state Jacobians and measurement models.
+"""Model of the full-state indirect filter: state layout, nominal kinematics, error-state transition, process
+noise and injection (docs/indirect.md, 'State vector', 'Process model', 'Injection and reset').
 
-Error-state (multiplicative) EKF after Sola 2017 ("local", right-perturbation convention), design note section 5.
+Error-state (multiplicative) EKF after Sola 2017 ("local", right-perturbation convention). The measurement models
+are in :mod:`estimators.indirect.measurements`.
 
 Nominal state ``x`` (flat float64 vector, indices ``X_*``):
 
@@ -25,7 +27,7 @@ Error state ``dx`` (indices ``E_*``): ``(dp, dv, dtheta, db_g, db_a, dw, db_m, d
 IMU model: ``gyro = omega + b_g + n_g``, ``accel = K^-1 R^T (a - g_n) + b_a + n_a`` with ``g_n = (0, 0, +g)``,
 ``K = [[1, 0, 0], [0, 1, 0], [-k_zx, -k_zy, 1]]``: the specific force is ``f = K (accel - b_a)``, i.e. the z
 accelerometer also sees ``k_zx f_x + k_zy f_y`` (cross-axis coupling, Table 1: up to 2 %; it changes the
-effective z bias at every climb/cruise/descent transition, math note 5 [ADD]). ``k = 0`` when not estimated.
+effective z bias at every climb/cruise/descent transition). ``k = 0`` when not estimated.
 Each IMU sample is held constant over its interval ``dt`` (zero-order hold).
 
 Every function here is a small ``numba`` kernel; finite differences appear only in the tests.
@@ -61,7 +63,7 @@ X_BB = 21
 X_KZ = 22
 NX = 24
 
-# Error state layout (see ``estimators.indirect.kernel.ERROR_STATES`` for units and sigmas).
+# Error state layout (units and sigmas: ``estimators.indirect.run.error_state_table``).
 E_P = 0
 E_V = 3
 E_TH = 6
@@ -218,9 +220,9 @@ def process_noise(F, gyro_psd, accel_psd, dt_s, Q_dyn):
 
     ``Q_dyn = F_bg diag(N_g^2 / dt) F_bg^T + F_ba diag(N_a^2 / dt) F_ba^T`` over the first :data:`N_DYNAMIC` rows,
     where ``F_bg``, ``F_ba`` are the gyro- and accelerometer-bias columns of ``F`` (white input noise enters
-    exactly like a bias error) and ``N^2 / dt`` is the variance of one IMU sample averaged over ``dt`` (math note
-    2.2: N^2 dt = sigma^2 dt^2). The rest of Q is the random walks ``diag(K^2) dt``, added by
-    :func:`propagate_covariance`.
+    exactly like a bias error) and ``N^2 / dt`` is the variance of one IMU sample averaged over ``dt``
+    (``N^2 dt = sigma^2 dt^2``, docs/indirect.md, 'Process model'). The rest of Q is the random walks
+    ``diag(K^2) dt``, added by :func:`add_process_noise`.
 
     Parameters
     ----------
@@ -264,7 +266,8 @@ def add_process_noise(P, Q_dyn, walk_psd, dt_s):
 # ----------------------------------------------------------------------------------------------------------------
 @njit(cache=True)
 def inject(x, dx, P):
-    """Inject an estimated error into the nominal state and reset the error to zero (design note 5.4).
+    """Inject an estimated error into the nominal state and reset the error to zero (docs/indirect.md,
+    'Injection and reset').
 
     ``p += dp, v += dv, q <- q (x) Exp(dtheta), b += db, w += dw, k += dk``; the covariance of the reset error is
     ``G P G^T`` with ``G = blockdiag(I, I, I - [dtheta/2]x, I, ...)`` (Sola 2017 sec. 7.2). ``dx`` is zeroed.
@@ -302,153 +305,3 @@ def inject(x, dx, P):
         P[i, E_TH + 2] = c - (gx * b - gy * a)
     for i in range(NE):
         dx[i] = 0.0
-
-
-# ----------------------------------------------------------------------------------------------------------------
-# Measurement models: each returns h(x) and writes the row H = dh/d(dx) into ``H`` (length NE, zeroed first)
-# ----------------------------------------------------------------------------------------------------------------
-@njit(cache=True)
-def _ned_axis_in_body(x, axis):
-    """Row ``axis`` of R(q): the NED axis ``axis`` in body axes, ``R^T e_axis``."""
-    return rotate(x[X_Q], -x[X_Q + 1], -x[X_Q + 2], -x[X_Q + 3], 1.0 if axis == 0 else 0.0,
-                  1.0 if axis == 1 else 0.0, 1.0 if axis == 2 else 0.0)
-
-
-@njit(cache=True)
-def h_baro(x, H):
-    """Barometric height above the origin [m]: ``h = -p_d + b_b`` (``b_b`` stays 0 when not estimated)."""
-    H[:] = 0.0
-    H[E_P + 2] = -1.0
-    H[E_BB] = 1.0
-    return x[X_BB] - x[X_P + 2]
-
-
-@njit(cache=True)
-def h_gps_position(x, lever_arm_b_m, axis, H):
-    """GPS antenna position [m] NED, component ``axis``: ``h = p + R l_b``.
-
-    ``H_dp = e_axis^T``, ``H_dtheta = -e_axis^T R [l_b]x = (l_b x r)^T`` with ``r = R^T e_axis``.
-    """
-    H[:] = 0.0
-    rx, ry, rz = _ned_axis_in_body(x, axis)
-    lx, ly, lz = lever_arm_b_m[0], lever_arm_b_m[1], lever_arm_b_m[2]
-    H[E_P + axis] = 1.0
-    H[E_TH] = ly * rz - lz * ry
-    H[E_TH + 1] = lz * rx - lx * rz
-    H[E_TH + 2] = lx * ry - ly * rx
-    return x[X_P + axis] + rx * lx + ry * ly + rz * lz
-
-
-@njit(cache=True)
-def h_gps_velocity(x, gyro_rad_s, lever_arm_b_m, axis, H):
-    """GPS antenna velocity [m/s] NED, component ``axis``: ``h = v + R (omega x l_b)``, ``omega = gyro - b_g``.
-
-    With ``r = R^T e_axis`` and ``u = omega x l_b``: ``H_dv = e_axis^T``, ``H_dtheta = -e_axis^T R [u]x = (u x r)^T``,
-    ``H_dbg = e_axis^T R [l_b]x = (r x l_b)^T``.
-    """
-    H[:] = 0.0
-    rx, ry, rz = _ned_axis_in_body(x, axis)
-    lx, ly, lz = lever_arm_b_m[0], lever_arm_b_m[1], lever_arm_b_m[2]
-    wx = gyro_rad_s[0] - x[X_BG]
-    wy = gyro_rad_s[1] - x[X_BG + 1]
-    wz = gyro_rad_s[2] - x[X_BG + 2]
-    ux = wy * lz - wz * ly
-    uy = wz * lx - wx * lz
-    uz = wx * ly - wy * lx
-    H[E_V + axis] = 1.0
-    H[E_TH] = uy * rz - uz * ry
-    H[E_TH + 1] = uz * rx - ux * rz
-    H[E_TH + 2] = ux * ry - uy * rx
-    H[E_BG] = ry * lz - rz * ly
-    H[E_BG + 1] = rz * lx - rx * lz
-    H[E_BG + 2] = rx * ly - ry * lx
-    return x[X_V + axis] + rx * ux + ry * uy + rz * uz
-
-
-@njit(cache=True)
-def h_ground_speed(x, H):
-    """Horizontal ground speed [m/s] (paper-mode GPS, eq. 43 corrected): ``h = |(v_n, v_e)|``.
-
-    ``H_dv = (v_n, v_e, 0) / V_g``; zero row when ``V_g`` is ~0 (the caller skips such updates).
-    """
-    H[:] = 0.0
-    speed = math.hypot(x[X_V], x[X_V + 1])
-    if speed > 1e-3:
-        H[E_V] = x[X_V] / speed
-        H[E_V + 1] = x[X_V + 1] / speed
-    return speed
-
-
-@njit(cache=True)
-def h_course(x, H):
-    """Course over ground [rad] (paper-mode GPS): ``h = atan2(v_e, v_n)``; the caller wraps the innovation.
-
-    ``H_dv = (-v_e, v_n, 0) / V_g^2``.
-    """
-    H[:] = 0.0
-    speed2 = x[X_V] ** 2 + x[X_V + 1] ** 2
-    if speed2 > 1e-6:
-        H[E_V] = -x[X_V + 1] / speed2
-        H[E_V + 1] = x[X_V] / speed2
-    return math.atan2(x[X_V + 1], x[X_V])
-
-
-@njit(cache=True)
-def h_airspeed(x, H):
-    """True airspeed [m/s]: ``h = |v - w|`` (pitot aligned with the air flow; the wind has no vertical component).
-
-    ``H_dv = (v - w)^T / V_a``, ``H_dw = -(v - w)_{n,e}^T / V_a``; zero row when ``V_a`` is ~0.
-    """
-    H[:] = 0.0
-    air_n, air_e, air_d = x[X_V] - x[X_W], x[X_V + 1] - x[X_W + 1], x[X_V + 2]
-    airspeed = math.sqrt(air_n * air_n + air_e * air_e + air_d * air_d)
-    if airspeed > 1e-3:
-        H[E_V] = air_n / airspeed
-        H[E_V + 1] = air_e / airspeed
-        H[E_V + 2] = air_d / airspeed
-        H[E_W] = -air_n / airspeed
-        H[E_W + 1] = -air_e / airspeed
-    return airspeed
-
-
-@njit(cache=True)
-def h_sideslip(x, H):
-    """Lateral body air velocity [m/s] (zero-sideslip pseudo-measurement, fixed-wing): ``h = e2^T R^T (v - w)``.
-
-    ``H_dv = e2^T R^T``, ``H_dtheta = e2^T [R^T (v - w)]x``, ``H_dw = -e2^T R^T[:, 0:2]``.
-    """
-    H[:] = 0.0
-    qw, qx, qy, qz = x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3]
-    air_bx, air_by, air_bz = rotate(qw, -qx, -qy, -qz, x[X_V] - x[X_W], x[X_V + 1] - x[X_W + 1], x[X_V + 2])
-    # e2^T [a]x = (a_z, 0, -a_x).
-    H[E_TH] = air_bz
-    H[E_TH + 2] = -air_bx
-    r_n, r_e, r_d = rotate(qw, qx, qy, qz, 0.0, 1.0, 0.0)  # e2^T R^T = (R e2)^T
-    H[E_V] = r_n
-    H[E_V + 1] = r_e
-    H[E_V + 2] = r_d
-    H[E_W] = -r_n
-    H[E_W + 1] = -r_e
-    return air_by
-
-
-@njit(cache=True)
-def h_body_vector(x, ref_ned, axis, with_mag_bias, H):
-    """A known NED vector seen in the body, component ``axis``: ``h = R^T r_n (+ b_m)``.
-
-    Magnetometer (``r_n`` = earth field [gauss], ``with_mag_bias``) or sun direction (unit vector).
-    ``H_dtheta = e_axis^T [R^T r_n]x``, ``H_dbm = e_axis^T`` with the bias.
-    """
-    H[:] = 0.0
-    b0, b1, b2 = rotate(x[X_Q], -x[X_Q + 1], -x[X_Q + 2], -x[X_Q + 3], ref_ned[0], ref_ned[1], ref_ned[2])
-    # row ``axis`` of [b]x
-    if axis == 0:
-        H[E_TH + 1], H[E_TH + 2], value = -b2, b1, b0
-    elif axis == 1:
-        H[E_TH], H[E_TH + 2], value = b2, -b0, b1
-    else:
-        H[E_TH], H[E_TH + 1], value = -b1, b0, b2
-    if with_mag_bias:
-        H[E_BM + axis] = 1.0
-        value += x[X_BM + axis]
-    return value
