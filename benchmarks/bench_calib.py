@@ -1,4 +1,5 @@
-"""Calibration speed on long static IMU records (Allan analysis wants >= 1-2 h of data, math note 9.5).
+"""Calibration speed on long static IMU records (Allan analysis wants >= 1-2 h of data, docs/calibration.md, 'Allan
+deviation').
 
 Builds a stationary 250 Hz IMU stream of ``--minutes`` with seeded white noise and a gyro rate random walk, then
 times :func:`calib.calibration.calibrate` (automatic segment, FIR, eq 50 / sigma, biases, Allan) and prints the

@@ -1,4 +1,5 @@
-"""solarnav calib layer: sensor noise, bias, R and tau from a flight log (paper sec. 5, math note 9).
+"""solarnav calib layer: sensor noise, bias, R and tau from a flight log (paper sec. 5, docs/calibration.md, 'Noise and
+bias (eq 50)').
 
 Modules, in data-flow order (calib imports only ``ingest`` and third-party libraries):
 

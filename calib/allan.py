@@ -1,4 +1,5 @@
-"""Allan deviation of an IMU axis over a stationary segment and the figures read off it (math note 9.5).
+"""Allan deviation of an IMU axis over a stationary segment and the figures read off it (docs/calibration.md, 'Allan
+deviation').
 
 Units below for a gyro axis in rad/s (accelerometer: replace rad by m/s):
 

@@ -1,4 +1,5 @@
-"""Physically referenced sensor biases (math note 9.3), beside eq 50's beta which is ~0 by construction.
+"""Physically referenced sensor biases (docs/calibration.md, 'Noise and bias (eq 50)'), beside eq 50's beta which is ~0
+by construction.
 
 * stationary segment: gyro bias = mean rate (earth rate <= 7.3e-5 rad/s is neglected); accelerometer: only the
   component along gravity is identifiable from one orientation, b_parallel = |mean f| - g_local. The direction of

@@ -4,7 +4,8 @@
 CALIB.json. Noise convention (``docs/nomenclature.md``): every ``sigma`` is a per-sample standard deviation at the
 stream's rate (``SensorCalibration.fir.fs_hz``); the density is sigma / sqrt(rate).
 
-R (paper eq 51) is diag(noise^2) per sensor, with ``noise`` = sigma (default, math note 9.4) or eta (the paper's
+R (paper eq 51) is diag(noise^2) per sensor, with ``noise`` = sigma (default, docs/calibration.md, 'Penalty factor tau
+(eq 52)') or eta (the paper's
 literal choice); the accelerometer's body-y entry is multiplied by tau (eq 52). The gyroscope's "R" is the
 covariance of the gyro INPUT (it enters the filters' Q through G), not a measurement covariance.
 """
@@ -83,7 +84,7 @@ IMU_SENSORS = ("accelerometer", "gyroscope")
 
 @dataclass(frozen=True)
 class FirSettings:
-    """Requested filter for one sensor; None picks the rate-based default (math note 9.2).
+    """Requested filter for one sensor; None picks the rate-based default (docs/calibration.md, 'FIR filtering').
 
     Attributes
     ----------

@@ -15,7 +15,8 @@ Schema ``"solarnav.calibration/1"`` (strict JSON; NaN is written as null; units 
                      "fs_hz": float, "cutoff_hz": float, "numtaps": int, "rho_h": float},
           "n_samples": int,
           "eta": [..], "beta": [..],                # paper eq 50, per axis
-          "sigma": [..], "sigma_robust": [..],      # per-sample std at fs_hz (math note 9.1)
+          "sigma": [..], "sigma_robust": [..],      # per-sample std at fs_hz (docs/calibration.md, 'Noise and bias (eq
+          50)')
           "mean": [..], "warnings": [str, ...]
         }
       },

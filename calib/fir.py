@@ -1,4 +1,5 @@
-"""Zero-phase FIR low-pass used to split a measured channel into "motion" and "noise" (math note 9.1-9.2).
+"""Zero-phase FIR low-pass used to split a measured channel into "motion" and "noise" (docs/calibration.md, 'Noise and
+bias (eq 50)'; docs/calibration.md, 'FIR filtering').
 
 The filter is a Hamming-window FIR (``scipy.signal.firwin``, odd length, linear phase, unity DC gain) applied
 forward and backward with ``scipy.signal.filtfilt`` (zero phase, magnitude |H|^2). The first and last ``numtaps``
@@ -17,9 +18,9 @@ from ingest.errors import InputError
 
 #: Window of every FIR we design (stored in CALIB.json for traceability).
 FIR_WINDOW = "hamming"
-#: Hamming-window transition width is about this many times fs / numtaps (math note 9.2).
+#: Hamming-window transition width is about this many times fs / numtaps (docs/calibration.md, 'FIR filtering').
 HAMMING_WIDTH_FACTOR = 3.3
-#: Default cutoffs [Hz]: above the rigid-body motion, below vibration (math note 9.2).
+#: Default cutoffs [Hz]: above the rigid-body motion, below vibration (docs/calibration.md, 'FIR filtering').
 DEFAULT_CUTOFF_FIXED_WING_HZ = 5.0
 DEFAULT_CUTOFF_MULTICOPTER_HZ = 15.0
 #: A default cutoff never exceeds this fraction of the sample rate, so slow streams (GPS, baro) keep some noise band.
@@ -41,7 +42,8 @@ class FirSpec:
     numtaps : int
         Filter length (odd).
     rho_h : float
-        Fraction of white-noise variance that survives in the residual x - filtfilt(x) (math note 9.1):
+        Fraction of white-noise variance that survives in the residual x - filtfilt(x) (docs/calibration.md, 'Noise and
+        bias (eq 50)'):
         ``sum((delta - h * reverse(h))^2)``; divide var(residual) by it to estimate the white-noise variance.
     taps : numpy.ndarray
         Filter coefficients, shape (numtaps,); derived from the three design values, not compared.
@@ -79,7 +81,8 @@ class FrequencyResponse:
 
 
 def residual_variance_factor(taps: np.ndarray) -> float:
-    """rho_h of math note 9.1 [-]: white-noise variance fraction left in x - filtfilt(taps, x).
+    """rho_h of docs/calibration.md, 'Noise and bias (eq 50)' [-]: white-noise variance fraction left in x -
+    filtfilt(taps, x).
 
     The effective filtfilt impulse response is g = h * reverse(h), centred; the residual filter is delta - g.
     """
@@ -119,13 +122,14 @@ def design_fir(fs_hz: float, cutoff_hz: float, numtaps: int) -> FirSpec:
 
 
 def default_cutoff_hz(fs_hz: float, fixed_wing: bool) -> float:
-    """Default cutoff [Hz]: 5 Hz fixed-wing, 15 Hz otherwise, at most 0.2 fs (math note 9.2)."""
+    """Default cutoff [Hz]: 5 Hz fixed-wing, 15 Hz otherwise, at most 0.2 fs (docs/calibration.md, 'FIR filtering')."""
     vehicle_cutoff = DEFAULT_CUTOFF_FIXED_WING_HZ if fixed_wing else DEFAULT_CUTOFF_MULTICOPTER_HZ
     return min(vehicle_cutoff, MAX_DEFAULT_CUTOFF_FRACTION * fs_hz)
 
 
 def default_numtaps(fs_hz: float, cutoff_hz: float) -> int:
-    """Odd length giving a transition width of cutoff/2: numtaps ~ 3.3 fs / (cutoff / 2) (math note 9.2)."""
+    """Odd length giving a transition width of cutoff/2: numtaps ~ 3.3 fs / (cutoff / 2)
+    (docs/calibration.md, 'FIR filtering')."""
     n = math.ceil(HAMMING_WIDTH_FACTOR * fs_hz / (cutoff_hz / 2))
     return n if n % 2 else n + 1
 

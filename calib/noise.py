@@ -1,4 +1,5 @@
-"""Noise and bias of one channel from a measured segment and its zero-phase low-pass (paper eq 50, math note 9.1).
+"""Noise and bias of one channel from a measured segment and its zero-phase low-pass (paper eq 50, docs/calibration.md,
+'Noise and bias (eq 50)').
 
 Two families are reported side by side:
 

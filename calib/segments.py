@@ -1,4 +1,5 @@
-"""Calibration segments: a user window, or quiet stretches found automatically (math note 9.3).
+"""Calibration segments: a user window, or quiet stretches found automatically (docs/calibration.md, 'Noise and bias (eq
+50)').
 
 * stationary: the IMU sees no rotation and only gravity: the moving average of the gyro vector has norm below
   ``gyro_max_rad_s`` and that of the specific force has a constant norm, within ``accel_tol_m_s2`` of its median
@@ -70,9 +71,10 @@ class StationaryCriteria:
     Attributes
     ----------
     gyro_max_rad_s : float
-        Largest norm of the averaged gyro vector [rad/s] (math note 9.3).
+        Largest norm of the averaged gyro vector [rad/s] (docs/calibration.md, 'Noise and bias (eq 50)').
     accel_tol_m_s2 : float
-        Largest deviation of |averaged specific force| from its median over the stretch [m/s^2] (math note 9.3's
+        Largest deviation of |averaged specific force| from its median over the stretch [m/s^2] (docs/calibration.md,
+        'Noise and bias (eq 50)''s
         0.2, applied around g + the along-gravity offset instead of g).
     accel_offset_max_m_s2 : float
         Largest | |averaged specific force| - g | [m/s^2]: admits uncalibrated MPU6050-class zero-g offsets (paper

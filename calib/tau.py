@@ -1,4 +1,5 @@
-"""The penalty factor tau of paper eq 52 on the accelerometer's body-y variance, and how to choose it (note 9.4).
+"""The penalty factor tau of paper eq 52 on the accelerometer's body-y variance, and how to choose it
+(docs/calibration.md, 'Penalty factor tau (eq 52)').
 
 R_accel = diag(R_x0, tau R_y0, R_z0). tau is either set by the user or chosen from filter replays: the caller
 injects ``replay(tau) -> Innovations`` (the y-axis accelerometer innovations of a full filter run with that tau;
@@ -22,7 +23,7 @@ from scipy import optimize, stats
 
 from ingest.errors import InputError
 
-#: Search interval of log10 tau (math note 9.4).
+#: Search interval of log10 tau (docs/calibration.md, 'Penalty factor tau (eq 52)').
 LOG10_TAU_BOUNDS = (-1.0, 2.0)
 TAU_METHODS = ("likelihood", "nis")
 #: Lag-1 autocorrelation of the normalised innovations above which they are called coloured.

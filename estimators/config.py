@@ -2,10 +2,12 @@
 
 One frozen :class:`EstimatorConfig` holds everything a replay needs besides the log; the kernels receive plain
 floats and arrays taken from it (never the object). Every default below is documented with where it comes from:
-the paper's Table 1 (sensor grades), Table 4 / eq. 51 (in-flight IMU noise), the math design note (sections 2.3,
-5.5, 7, 9) or PX4 EKF2's defaults where the paper gives nothing.
+the paper's Table 1 (sensor grades), Table 4 / eq. 51 (in-flight IMU noise), the docs (docs/estimators.md,
+docs/calibration.md)
+or PX4 EKF2's defaults where the paper gives nothing.
 
-Noise convention (math note 2.2, option i): IMU noise is given as a white-noise DENSITY (per sqrt(Hz)) so that the
+Noise convention (docs/estimators.md, 'Process noise and random walks', option i): IMU noise is given as a white-noise
+DENSITY (per sqrt(Hz)) so that the
 same numbers hold at any IMU rate; a per-sample standard deviation ``sigma`` at rate ``f_s`` relates to it by
 ``density = sigma / sqrt(f_s)``. Bias and wind random walks are densities too (per sqrt(s)): the discrete
 variance added over ``dt`` is ``density**2 * dt``. Measurement noises are per-sample standard deviations.
@@ -31,7 +33,8 @@ class NoiseConfig:
     gyro_noise_rad_s_sqrt_hz : float
         Gyro white-noise density N_g [rad/s/sqrt(Hz)]. Default 2.0e-3: the MPU6050 static density (Table 1 row
         "0.05 deg/s-rms", about 0.005 deg/s/sqrt(Hz) = 8.7e-5 rad/s/sqrt(Hz)) is a lower bound; in flight,
-        vibration dominates (Table 4: 4-6 deg/s per sample at 50 Hz, which the math note 9.1 judges overstated
+        vibration dominates (Table 4: 4-6 deg/s per sample at 50 Hz, which docs/calibration.md, 'Noise and bias (eq 50)'
+        judges overstated
         by about 10x in variance, i.e. ~1.6 deg/s at 50 Hz = 4e-3 rad/s/sqrt(Hz)). 2e-3 sits between that and
         PX4 EKF2's EKF2_GYR_NOISE (0.015 rad/s per 100 Hz sample = 1.5e-3).
     accel_noise_m_s2_sqrt_hz : float
@@ -54,7 +57,8 @@ class NoiseConfig:
         Random walk of the z accelerometer's cross-axis sensitivities (``accel_cross_axis_states``) [1/sqrt(s)].
         Default 1e-5: a constant of the sensor (a walk this slow only keeps the estimate from freezing).
     wind_rw_m_s_sqrt_s : float
-        Wind random walk [m/s/sqrt(s)]. Default 0.05 (math note 3.3: (0.01-0.1 m/s)^2/s; PX4 EKF2_WIND_NSD 0.05).
+        Wind random walk [m/s/sqrt(s)]. Default 0.05 (docs/three_stage.md, 'Stage 3: navigation and wind': (0.01-0.1
+        m/s)^2/s; PX4 EKF2_WIND_NSD 0.05).
     mag_bias_rw_sqrt_s : float
         Magnetometer hard-iron bias random walk [field units/sqrt(s)] (the magnetometer is used normalised by the
         earth-field strength, so biases are fractions of it). Default 1e-4 (PX4 EKF2_MAG_B_NOISE 1e-4 gauss/s
@@ -69,29 +73,33 @@ class NoiseConfig:
         at 12.5 m/s is far larger as an offset; as white noise PX4 EKF2_EAS_NOISE 1.4 m/s; the paper's airspeed
         error 0.5-0.8 m/s).
     sideslip_sigma_m_s : float
-        Zero-sideslip pseudo-measurement noise on the body-y air velocity [m/s] (math note B3: 0.5-1 m/s).
+        Zero-sideslip pseudo-measurement noise on the body-y air velocity [m/s] (docs/direct.md, 'Measurement models':
+        0.5-1 m/s).
         Without wind states it is inflated to ``sideslip_no_wind_sigma_m_s``.
     sideslip_no_wind_sigma_m_s : float
-        Sideslip pseudo noise when no wind is estimated (math note 7.1: 2 m/s).
+        Sideslip pseudo noise when no wind is estimated (docs/estimators.md, 'Sensor plan': 2 m/s).
     gps_pos_sigma_floor_m : float
-        Floor of the per-axis GPS horizontal position sigma [m] (math note 3.3: 0.5 m).
+        Floor of the per-axis GPS horizontal position sigma [m] (docs/three_stage.md, 'Stage 3: navigation and wind':
+        0.5 m).
     gps_hgt_sigma_floor_m : float
         Floor of the GPS height sigma [m].
     gps_pos_eph_scale : float
-        Per-axis horizontal sigma = ``gps_pos_eph_scale * eph`` (eph is a horizontal radial accuracy; math note
-        3.3: eph / sqrt(2)), floored at ``gps_pos_sigma_floor_m``.
+        Per-axis horizontal sigma = ``gps_pos_eph_scale * eph`` (eph is a horizontal radial accuracy;
+        docs/three_stage.md, 'Stage 3: navigation and wind': eph / sqrt(2)), floored at ``gps_pos_sigma_floor_m``.
     gps_hgt_epv_scale : float
         Vertical sigma = ``gps_hgt_epv_scale * epv``, floored at ``gps_hgt_sigma_floor_m``.
     gps_vel_sigma_floor_m_s : float
-        Floor of the GPS velocity sigma [m/s] (math note 3.3: 0.1 m/s).
+        Floor of the GPS velocity sigma [m/s] (docs/three_stage.md, 'Stage 3: navigation and wind': 0.1 m/s).
     gps_vel_sigma_default_m_s : float
         GPS velocity sigma when the receiver reports no speed accuracy [m/s] (PX4 EKF2_GPS_V_NOIS 0.3... 0.5).
     mag_sigma : float
-        Magnetometer noise per axis in units of the field strength (math note 3.2: 0.02-0.05 for unit vectors).
+        Magnetometer noise per axis in units of the field strength (docs/three_stage.md, 'Stage 2: heading': 0.02-0.05
+        for unit vectors).
     sun_sigma_rad : float
-        Sun-vector direction noise per tangent axis [rad] (math note 8.3: a few tenths of a degree to 1 deg).
+        Sun-vector direction noise per tangent axis [rad] (docs/sun.md, 'Quality': a few tenths of a degree to 1 deg).
     zero_velocity_sigma_m_s : float
-        Noise of the zero-NED-velocity pseudo-measurement used only when a log has no GPS (math note 7.3: keeps
+        Noise of the zero-NED-velocity pseudo-measurement used only when a log has no GPS (docs/estimators.md, 'Sensor
+        plan': keeps
         tilt observable, like PX4 EKF2's fake-position fusion) [m/s].
     """
 
@@ -123,7 +131,8 @@ class NoiseConfig:
 class GateConfig:
     """Chi-square gates per sensor: a scalar update is rejected when ``|nu| / sqrt(S) > gate``.
 
-    Math note 2.3: gamma = 3..5 sigma, configurable per sensor. Pseudo-measurements (sideslip, zero velocity)
+    docs/estimators.md, 'GPS re-acquisition': gamma = 3..5 sigma, configurable per sensor. Pseudo-measurements
+    (sideslip, zero velocity)
     are never gated. ``math.inf`` disables a gate.
 
     Attributes
@@ -142,7 +151,7 @@ class GateConfig:
 
 @dataclass(frozen=True)
 class InitialSigmas:
-    """Initial 1-sigma uncertainties (math note 5.5).
+    """Initial 1-sigma uncertainties (docs/estimators.md, 'Initial alignment').
 
     Attributes
     ----------
@@ -185,7 +194,8 @@ class InitialSigmas:
 
 @dataclass(frozen=True)
 class TimingConfig:
-    """Sensor timing and rates (math note 1.4, 2.1, 2.3, 3.3).
+    """Sensor timing and rates (docs/estimators.md, 'Inputs'; docs/estimators.md, 'Scheduling rule'; docs/estimators.md,
+    'GPS re-acquisition'; docs/three_stage.md, 'Stage 3: navigation and wind').
 
     Attributes
     ----------
@@ -196,26 +206,28 @@ class TimingConfig:
         Rate at which the covariance is propagated (the state is integrated at the IMU rate; PX4 EKF2 also
         predicts covariance at ~100 Hz). The covariance is also brought up to date before every update.
     pseudo_rate_hz : float
-        Rate of pseudo-measurements (zero sideslip, zero velocity) [Hz] (math note 3.3 / T31: a fixed rate such
+        Rate of pseudo-measurements (zero sideslip, zero velocity) [Hz] (docs/three_stage.md, 'Stage 3: navigation and
+        wind'; docs/three_stage.md, 'Corrections to the paper': a fixed rate such
         as the GPS rate, never every IMU step).
     max_imu_gap_factor : float
-        An IMU interval longer than this many median periods is a gap (math note 2.1: 5).
+        An IMU interval longer than this many median periods is a gap (docs/estimators.md, 'Scheduling rule': 5).
     still_window_s : float
-        Minimum length of the stationary window used for initial alignment [s] (math note 5.5: >= 2 s).
+        Minimum length of the stationary window used for initial alignment [s] (docs/estimators.md, 'Initial alignment':
+        >= 2 s).
     still_gyro_rad_s : float
-        Stationary when ``|gyro| <`` this [rad/s] (math note 5.5: 0.05).
+        Stationary when ``|gyro| <`` this [rad/s] (docs/estimators.md, 'Initial alignment': 0.05).
     still_accel_m_s2 : float
-        Stationary when ``| |accel| - g | <`` this [m/s^2] (math note 5.5: 0.2).
+        Stationary when ``| |accel| - g | <`` this [m/s^2] (docs/estimators.md, 'Initial alignment': 0.2).
     gps_reset_after_s : float
         T_rej: a GPS position or velocity component rejected continuously this long -> position and velocity
-        reset to the GPS (math note 2.3: 5 s) [s].
+        reset to the GPS (docs/estimators.md, 'GPS re-acquisition': 5 s) [s].
     gps_outage_reset_s : float
-        T_out: GPS back after an outage longer than this -> position and velocity reset to the GPS (math note
-        2.3: 10 s) [s].
+        T_out: GPS back after an outage longer than this -> position and velocity reset to the GPS
+        (docs/estimators.md, 'GPS re-acquisition': 10 s) [s].
     min_airspeed_m_s : float
         Airspeed samples below this are not fused (on the ground, before launch) [m/s].
     min_ground_speed_m_s : float
-        V_min of math note 7.5 for course updates [m/s].
+        V_min of docs/estimators.md, 'Sensor plan' for course updates [m/s].
     """
 
     gps_delay_s: float | None = None
@@ -242,7 +254,8 @@ class EstimatorConfig:
     initial : InitialSigmas
     timing : TimingConfig
     accel_bias_states : bool
-        Estimate accelerometer biases (math note 4: on for real logs; off reproduces the paper's 14 states).
+        Estimate accelerometer biases (docs/direct.md, 'State vector': on for real logs; off reproduces the paper's 14
+        states).
     accel_cross_axis_states : bool
         Estimate the z accelerometer's cross-axis sensitivity to the x (and, off fixed-wing, y) specific force
         (the error-state filter only, and only with GPS like the accelerometer bias).
@@ -251,7 +264,8 @@ class EstimatorConfig:
     baro_bias_state : bool
         Estimate the barometer offset against GPS height when both are present.
     gps_velocity_mode : str
-        ``"ned"`` (default, math note B5) or ``"paper"`` (ground speed and course, eqs 42-43 corrected).
+        ``"ned"`` (default, docs/direct.md, 'Measurement models') or ``"paper"`` (ground speed and course, eqs 42-43
+        corrected).
     """
 
     noise: NoiseConfig = field(default_factory=NoiseConfig)

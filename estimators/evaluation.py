@@ -32,7 +32,7 @@ PAPER_TABLE_2 = {
 #: Quantities of Table 2, in order.
 QUANTITIES = ("roll_deg", "pitch_deg", "yaw_deg", "position_m", "height_m", "airspeed_m_s", "ground_speed_m_s",
               "course_deg", "wind_m_s")
-#: Course errors are only meaningful above this true ground speed [m/s] (math note 7.5).
+#: Course errors are only meaningful above this true ground speed [m/s] (docs/estimators.md, 'Sensor plan').
 MIN_GROUND_SPEED_M_S = 3.0
 
 
@@ -135,7 +135,8 @@ SIM_ACCEL_BIAS_RW_Z = 0.05
 SIM_BARO_BIAS_RW = 0.1
 #: GPS position noise floors for simulated flights, horizontal and vertical [m]: the receiver's Gauss-Markov
 #: increment per 10 Hz sample is only 0.03 / 0.05 m; these floors are the values that bring the position NIS
-#: to ~1 (NIS matching, math note 9.4 (ii)); the slowly varying Gauss-Markov part stays out of R.
+#: to ~1 (NIS matching, docs/calibration.md, 'Penalty factor tau (eq 52)' (ii)); the slowly varying Gauss-Markov part
+#: stays out of R.
 SIM_GPS_FLOORS_M = (0.1, 0.3)
 #: Air density at the simulated cruise altitude [kg/m^3] (ISA, ~1200 m MSL) for pressure -> height/speed noise.
 SIM_AIR_DENSITY_KG_M3 = 1.1
@@ -143,7 +144,8 @@ SIM_AIR_DENSITY_KG_M3 = 1.1
 
 def config_for_simulation(sidecar: str | Path | dict, base: EstimatorConfig | None = None) -> EstimatorConfig:
     """The estimator noise settings that match a simulated log's TRUE sensor grades (its ``*_sim.json`` side
-    file written by ``solarnav simulate``): what the consistency tests of math note 2.3 call "the true noise
+    file written by ``solarnav simulate``): what the consistency tests of docs/estimators.md, 'GPS re-acquisition' call
+    "the true noise
     parameters".
 
     Mapping: IMU white noise (with in-flight vibration) per sample -> density ``sigma / sqrt(rate)``; gyro bias

@@ -1,7 +1,8 @@
 """Geodesy shared by every layer: WGS-84 normal gravity and geodetic <-> local NED coordinates.
 
 Local NED: north/east are WGS-84 tangent-plane coordinates at a reference point (pymap3d); down is
--(altitude - reference altitude), so GPS and barometric heights stay consistent (math note 1.5).
+-(altitude - reference altitude), so GPS and barometric heights stay consistent (docs/estimators.md, 'Frames and
+attitude identities').
 """
 
 from __future__ import annotations

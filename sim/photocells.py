@@ -1,4 +1,5 @@
-"""The 7-photocell sun device: cell currents from the true attitude and the sun's position (math note 8.2).
+"""The 7-photocell sun device: cell currents from the true attitude and the sun's position (docs/sun.md, 'Current
+model').
 
 The current model is :func:`estimators.sun.photocells.photocell_currents` (direct sun on lit cells plus isotropic sky
 light weighted by each cell's view of the sky); the sun direction comes from NREL SPA at the true position and

@@ -8,7 +8,7 @@ from scipy.signal import lfilter
 
 def gauss_markov(n_samples: int, dt_s: float, tau_s: float, sigma, rng: np.random.Generator, *,
                  stationary_start: bool = True) -> np.ndarray:
-    """First-order Gauss-Markov process sampled every ``dt_s`` (paper eq. 6, math note 10.2).
+    """First-order Gauss-Markov process sampled every ``dt_s`` (paper eq. 6, docs/evaluation.md, 'Table 2 set-up').
 
     ``v[n+1] = exp(-dt/tau) v[n] + eta[n]`` with ``Var(eta) = sigma^2 (1 - exp(-2 dt/tau))``, so the steady-state
     standard deviation is ``sigma`` whatever the sample rate.

@@ -1,7 +1,8 @@
 """Named scenarios: a mission, a site, a wind model, the sensor grades and a seed.
 
 ``paper``
-    The paper's mission (section 4, math note 10.1): 60 s at rest on the ground (initial alignment, static
+    The paper's mission (section 4, docs/evaluation.md, 'Table 2 set-up'): 60 s at rest on the ground (initial
+    alignment, static
     calibration), hand launch into the wind, circling climb at 3 m/s to 600 m above ground at about 12.5 m/s,
     cruise out, loiter three circles of 100 m radius ("hover"), turn back, cruise home, circling descent, landing
     and 10 s at rest; about 14.5 minutes. The paper's simulation was windless; here a light steady wind (2.5 m/s

@@ -1,4 +1,4 @@
-"""Sensor models of the low-cost autopilot (paper section 2, eqs 1-9 as corrected in the math note, Table 1).
+"""Sensor models of the low-cost autopilot (paper section 2, eqs 1-9 as corrected in docs/evaluation.md, Table 1).
 
 Every grade is a frozen dataclass whose fields are documented with units. Datasheet tolerances (Table 1: offsets,
 scale and cross-axis errors) are bounds, so a realisation draws each error uniformly within +/- the bound; noise
@@ -119,7 +119,7 @@ class MagGrade:
 
 @dataclass(frozen=True)
 class BaroGrade:
-    """MS5611-class barometer (eq. 4 with the ISA barometric formula, math note T28).
+    """MS5611-class barometer (eq. 4 with the ISA barometric formula, docs/direct.md, 'Corrections to the paper').
 
     Attributes
     ----------
@@ -160,7 +160,7 @@ class AirspeedGrade:
         White noise per sample of the differential pressure [Pa].
     offset_limit_pa : float
         Bound of the residual offset after zeroing at power-up [Pa] (the raw +/-2.5 % V_FS is ~100 Pa, more than
-        the 96 Pa dynamic pressure at 12.5 m/s: math note 10.4).
+        the 96 Pa dynamic pressure at 12.5 m/s: docs/evaluation.md, 'Plausibility floors').
     air_temp_noise_c : float
         White noise of the outside-air temperature reading [degC].
     """
@@ -173,7 +173,7 @@ class AirspeedGrade:
 
 @dataclass(frozen=True)
 class GpsGrade:
-    """u-blox NEO-M8N-class receiver (eqs 6-9, math note 10.2).
+    """u-blox NEO-M8N-class receiver (eqs 6-9, docs/evaluation.md, 'Table 2 set-up').
 
     Attributes
     ----------

@@ -3,9 +3,11 @@
 from __future__ import annotations
 
 import ast
+import re
 
 import pytest
 
+from scripts import architecture
 from tests.conftest import REPO_DIR
 
 #: What each top-level package may import from the project.
@@ -40,3 +42,66 @@ def test_layers_import_only_downwards(package):
             if package != "app" and module in UI_MODULES:
                 violations.append(f"{path.relative_to(REPO_DIR)}:{lineno} imports UI module {module}")
     assert not violations, "\n".join(violations)
+
+
+#: Estimator subpackages that hold one filter each: none imports another.
+FILTER_PACKAGES = ("estimators.three_stage", "estimators.direct", "estimators.indirect")
+#: What the shared layers of ``estimators`` may import inside ``estimators`` (besides themselves).
+SHARED_LAYER_IMPORTS = {
+    "estimators.inputs.records": {"estimators.config"},
+    "estimators.core": {"estimators.config", "estimators.environment", "estimators.inputs.records"},
+    "estimators.sun": {"estimators.config", "estimators.environment", "estimators.core.linalg"},
+}
+MAX_MODULE_LINES = 600
+
+
+def test_no_import_cycles_anywhere():
+    """Every import counts, deferred ones inside functions too (scripts/architecture.py prints the same)."""
+    found = architecture.cycles(architecture.import_graph(architecture.module_files()))
+    assert not found, "\n".join(" <-> ".join(component) for component in found)
+
+
+def test_filters_do_not_import_each_other_and_shared_layers_stay_below_them():
+    graph = architecture.import_graph(architecture.module_files())
+    violations = []
+    for module, imported in graph.items():
+        own = next((p for p in FILTER_PACKAGES if module == p or module.startswith(p + ".")), None)
+        for target in imported:
+            other = next((p for p in FILTER_PACKAGES if target == p or target.startswith(p + ".")), None)
+            if own and other and other != own:
+                violations.append(f"{module} imports {target}")
+        layer = next((p for p in SHARED_LAYER_IMPORTS if module == p or module.startswith(p + ".")), None)
+        if layer is not None:
+            for target in imported:
+                if target.startswith("estimators") and not target.startswith(layer) and not any(
+                        target == allowed or target.startswith(allowed + ".")
+                        for allowed in SHARED_LAYER_IMPORTS[layer]):
+                    violations.append(f"{module} ({layer}) imports {target}")
+    assert not violations, "\n".join(sorted(violations))
+
+
+def test_no_estimators_module_over_600_lines():
+    long = {name: architecture.line_count(path) for name, path in architecture.module_files().items()
+            if name.startswith("estimators") and architecture.line_count(path) > MAX_MODULE_LINES}
+    assert not long, long
+
+
+CITATION = re.compile(r"docs/([a-z_]+\.md), '([^']+)'")
+
+
+def test_docstrings_cite_existing_docs_sections_and_nothing_outside_the_repository():
+    """A citation ``docs/<file>.md, '<Section>'`` names a heading of that file; no citation of the design note
+    that is not part of the repository ("math note 2.3", "design note section 8")."""
+    headings = {path.name: {line.lstrip("#").strip() for line in path.read_text().splitlines() if line.startswith("#")}
+                for path in (REPO_DIR / "docs").glob("*.md")}
+    problems = []
+    for package in (*sorted(ALLOWED), "tests", "benchmarks", "scripts"):
+        for path in sorted((REPO_DIR / package).rglob("*.py")):
+            text = path.read_text()
+            for match in CITATION.finditer(text):
+                title = re.sub(r"\s*\n\s*(#:?\s*)?", " ", match.group(2))  # a title wrapped over lines
+                if title not in headings.get(match.group(1), ()):
+                    problems.append(f"{path.relative_to(REPO_DIR)}: {match.group(0)} is not a heading")
+            if path.name != "test_architecture.py" and re.search(r"\b(math|design) note\b", text, re.I):
+                problems.append(f"{path.relative_to(REPO_DIR)} cites the design note")
+    assert not problems, "\n".join(problems)

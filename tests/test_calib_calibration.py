@@ -101,7 +101,8 @@ def test_noise_choice_eta_builds_r_from_eq50(still_log):
     eta = np.array(cal.sensors["gyroscope"].eta)
     np.testing.assert_allclose(cal.r_matrix("gyroscope"), np.diag(eta**2))
     # eq 50's eta is half a range difference: the measured half-range is ~3.9 sigma for ~14000 white samples,
-    # less the small half-range of the filtered noise, so eta is ~3 sigma, far above sigma (math note 9.1).
+    # less the small half-range of the filtered noise, so eta is ~3 sigma, far above sigma (docs/calibration.md, 'Noise
+    # and bias (eq 50)').
     assert np.all(eta > 2.5 * np.array(NOISE["gyroscope"]))
     with pytest.raises(InputError):
         calibrate(still_log, noise="std")

@@ -21,7 +21,8 @@ def test_eq50_literal_on_a_hand_computed_example():
 
 
 def test_rho_h_matches_the_design_note_and_a_monte_carlo():
-    # Math note 9.1: 101-tap Hamming, fc = 5 Hz, fs = 50 Hz -> rho_h = 0.801 (ideal low-pass: 1 - 5/25 = 0.8).
+    # docs/calibration.md, 'Noise and bias (eq 50)': 101-tap Hamming, fc = 5 Hz, fs = 50 Hz -> rho_h = 0.801 (ideal
+    # low-pass: 1 - 5/25 = 0.8).
     spec = design_fir(50.0, 5.0, 101)
     assert spec.rho_h == pytest.approx(0.801, abs=1e-3)
     # Independent check: the fraction of white-noise variance left in x - filtfilt(x).
@@ -45,7 +46,8 @@ def test_defaults_follow_the_rate_and_vehicle():
     assert default_cutoff_hz(250.0, fixed_wing=True) == 5.0
     assert default_cutoff_hz(250.0, fixed_wing=False) == 15.0
     assert default_cutoff_hz(10.0, fixed_wing=False) == pytest.approx(2.0)  # capped at 0.2 fs for slow streams
-    # Math note 9.2: transition ~3.3 fs / numtaps; fs = 250 Hz, fc = 10 Hz, width 5 Hz -> 165 taps.
+    # docs/calibration.md, 'FIR filtering': transition ~3.3 fs / numtaps; fs = 250 Hz, fc = 10 Hz, width 5 Hz -> 165
+    # taps.
     assert default_numtaps(250.0, 10.0) == 165
     assert default_numtaps(250.0, 15.0) % 2 == 1
 

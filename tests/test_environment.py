@@ -17,7 +17,8 @@ from estimators.environment import (
 
 
 def test_local_gravity_matches_math_note_value_at_field_site():
-    # math note 1.2: ~9.7955 m/s^2 at 35 N / 630 m; equator sea level is the WGS-84 normal gravity 9.7803253359
+    # docs/estimators.md, 'Frames and attitude identities': ~9.7955 m/s^2 at 35 N / 630 m; equator sea level is the
+    # WGS-84 normal gravity 9.7803253359
     assert local_gravity_m_s2(35.0, 630.0) == pytest.approx(9.7955, abs=2e-4)
     assert local_gravity_m_s2(0.0, 0.0) == pytest.approx(9.7803253359, abs=1e-9)
 

@@ -1,4 +1,5 @@
-"""Sun direction in local NED (estimators.environment.sun_direction_ned, NREL SPA via pvlib), design note 8.1."""
+"""Sun direction in local NED (estimators.environment.sun_direction_ned, NREL SPA via pvlib),
+docs/sun.md, 'Measurement model'."""
 
 from __future__ import annotations
 
@@ -16,7 +17,7 @@ def azimuth_deg(s_ned: np.ndarray) -> np.ndarray:
 def test_nrel_spa_report_example():
     # Reda & Andreas 2004 (NREL/TP-560-34302) example: apparent zenith 50.111622 deg, azimuth 194.340241 deg with
     # delta_t = 67 s. sun_direction_ned lets pvlib compute delta_t (64.5 s for Oct 2003); 2.5 s of delta_t move the
-    # sun by ~3e-5 deg (note 8.1), hence 1e-4 deg here instead of the report's 1e-5.
+    # sun by ~3e-5 deg (docs/sun.md, 'Measurement model'), hence 1e-4 deg here instead of the report's 1e-5.
     times = pd.DatetimeIndex(["2003-10-17 19:30:30"], tz="UTC")
     s_ned, elevation_deg = sun_direction_ned(times, 39.742476, -105.1786, 1830.14, pressure_pa=82000.0,
                                              temp_c=11.0)
@@ -27,7 +28,8 @@ def test_nrel_spa_report_example():
 
 
 def almanac_sun_ned(times: pd.DatetimeIndex, lat_deg: np.ndarray, lon_deg: np.ndarray) -> np.ndarray:
-    """Low-precision geocentric, unrefracted sun direction (note 8.1 oracle, Astronomical Almanac formulas)."""
+    """Low-precision geocentric, unrefracted sun direction (oracle of docs/sun.md, 'Measurement model'; Astronomical
+    Almanac formulas)."""
     d = (times.to_julian_date().to_numpy() - 2451545.0)
     mean_longitude = 280.460 + 0.9856474 * d
     anomaly = np.radians(357.528 + 0.9856003 * d)
@@ -47,7 +49,8 @@ def almanac_sun_ned(times: pd.DatetimeIndex, lat_deg: np.ndarray, lon_deg: np.nd
 
 def test_agrees_with_the_low_precision_oracle():
     # Random instants 2000-2050 and |lat| < 70 deg; pressure 0 switches SPA's refraction off, leaving the
-    # geometric topocentric direction; the oracle lacks the 0.0024 deg parallax: bound 0.02 deg (note 8.1 [FLAG]).
+    # geometric topocentric direction; the oracle lacks the 0.0024 deg parallax: bound 0.02 deg (docs/sun.md,
+    # 'Measurement model' [FLAG]).
     rng = np.random.default_rng(8)
     n = 400
     start, end = pd.Timestamp("2000-01-01", tz="UTC"), pd.Timestamp("2050-12-31", tz="UTC")
@@ -64,7 +67,7 @@ def test_refraction_raises_the_apparent_elevation():
     _, apparent = sun_direction_ned(times, 47.0, 8.0, 500.0)  # ISA pressure: refraction on
     _, geometric = sun_direction_ned(times, 47.0, 8.0, 500.0, pressure_pa=0.0)
     assert 5.0 < geometric[0] < 20.0
-    # About 0.1 deg near 10 deg elevation (note 8.1).
+    # About 0.1 deg near 10 deg elevation (docs/sun.md, 'Measurement model').
     assert 0.04 < apparent[0] - geometric[0] < 0.15
 
 

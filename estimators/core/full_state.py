@@ -129,7 +129,8 @@ def gates_per_kind(config: EstimatorConfig) -> np.ndarray:
 
 
 def accel_bias_degradations(plan: records.SensorPlan, estimated: bool, configured: bool) -> tuple[str, ...]:
-    """The sensor plan's degradations, plus the accelerometer bias left out without GPS (math note 7.3)."""
+    """The sensor plan's degradations, plus the accelerometer bias left out without GPS
+    (docs/estimators.md, 'Sensor plan')."""
     extra = () if estimated or not configured else (
         "no GPS: accelerometer bias not estimated (no absolute velocity reference)",)
     return (*plan.degradations, *extra)

@@ -1,4 +1,4 @@
-"""Numba leaf functions shared by the three Kalman filters (math note section 2).
+"""Numba leaf functions shared by the three Kalman filters (docs/estimators.md, 'EKF algebra').
 
 Every function here is ``@njit(cache=True)``, works in place on preallocated float64 arrays and allocates
 nothing, so the filters' time loops can call it per sample without Python overhead. The filters own the models
@@ -18,7 +18,8 @@ nothing, so the filters' time loops can call it per sample without Python overhe
 * :func:`record_update` / :func:`record_output` -- the diagnostics and output recorders writing into
   preallocated arrays with a counter.
 * :func:`gps_monitor` / :func:`gps_record` / :func:`gps_reset_due` / :func:`gps_acquired` -- the GPS
-  re-acquisition rule of math note 2.3 (a position component or a velocity component rejected continuously for
+  re-acquisition rule of docs/estimators.md, 'GPS re-acquisition' (a position component or a velocity component rejected
+  continuously for
   ``T_rej``, or GPS back after an outage longer than ``T_out`` -> reset position and velocity to the GPS), and
   :func:`reset_covariance_block` for the reset's covariance (variances to R, cross-covariances zeroed).
 
@@ -63,7 +64,8 @@ def dynamic_rows(M, identity):
 
 @njit(cache=True)
 def transition_matrix(A, dt, F):
-    """Second-order transition matrix ``F = I + A dt + (A dt)^2 / 2`` (math note 2.2), written into ``F``.
+    """Second-order transition matrix ``F = I + A dt + (A dt)^2 / 2`` (docs/estimators.md, 'Process noise and random
+    walks'), written into ``F``.
 
     Only the leading rows of ``A`` with dynamics (:func:`dynamic_rows`) are non-zero, so ``A A`` is
     ``A[:, :m] A[:m, :]`` and the rows from ``m`` on are identity rows; the products are dense over that block
@@ -146,14 +148,21 @@ def propagate_sparse(P, values, cols, counts, work):
 def propagate_covariance(P, F, Qd, work):
     """``P <- F P F^T + Qd`` for a dense ``F`` whose rows after the states with dynamics are identity rows
     (:func:`dynamic_rows`) and a symmetric ``Qd``; ``P, F, Qd`` (n, n); ``work`` (n, n) scratch. Exactly
-    symmetric; :func:`propagate_sparse` does the product."""
+    symmetric; :func:`propagate_sparse` does the product. Allocates its sparse-row scratch: per-sample callers use
+    :func:`propagate_covariance_into`."""
+    n = P.shape[0]
+    propagate_covariance_into(P, F, Qd, work, np.empty((n, n)), np.empty((n, n), dtype=np.int64),
+                              np.empty(n, dtype=np.int64), np.arange(n))
+
+
+@njit(cache=True)
+def propagate_covariance_into(P, F, Qd, work, values, cols, counts, columns):
+    """:func:`propagate_covariance` with preallocated scratch: ``values`` (n, n) float64, ``cols`` (n, n) and
+    ``counts`` (n,) int64, ``columns`` = ``arange(n)``; nothing is allocated."""
     n = P.shape[0]
     m = dynamic_rows(F, True)
-    values = np.empty((m, n))
-    cols = np.empty((m, n), dtype=np.int64)
-    counts = np.empty(m, dtype=np.int64)
-    sparse_rows(F, np.arange(n), values, cols, counts)
-    propagate_sparse(P, values, cols, counts, work)
+    sparse_rows(F, columns, values[:m], cols[:m], counts[:m])
+    propagate_sparse(P, values[:m], cols[:m], counts[:m], work)
     for i in range(n):
         for j in range(i, n):
             v = P[i, j] + Qd[i, j]
@@ -162,8 +171,43 @@ def propagate_covariance(P, F, Qd, work):
 
 
 @njit(cache=True)
+def quadratic_form(v, P, first):
+    """``v^T P[first:, first:] v`` for a short tuple ``v``."""
+    s = 0.0
+    for a in range(len(v)):
+        for b in range(len(v)):
+            s += v[a] * P[first + a, first + b] * v[b]
+    return s
+
+
+@njit(cache=True, inline="always")
+def forward_solve(L, B, m):
+    """``B[:m] <- L^-1 B[:m]`` in place for the lower-triangular ``L[:m, :m]`` and ``B`` (>= m, k)."""
+    k = B.shape[1]
+    for i in range(m):
+        for j in range(i):
+            for c in range(k):
+                B[i, c] -= L[i, j] * B[j, c]
+        for c in range(k):
+            B[i, c] /= L[i, i]
+
+
+@njit(cache=True, inline="always")
+def sandwich(J, P, m, out):
+    """``out[:m, :m] = J[:m] P J[:m]^T`` for small matrices."""
+    n = P.shape[0]
+    for i in range(m):
+        for j in range(m):
+            s = 0.0
+            for a in range(n):
+                for b in range(n):
+                    s += J[i, a] * P[a, b] * J[j, b]
+            out[i, j] = s
+
+
+@njit(cache=True)
 def scalar_update(P, H, nu, r_var, gate, dx, ph):
-    """One scalar measurement update in Joseph form with chi-square gating (math note 2.3).
+    """One scalar measurement update in Joseph form with chi-square gating (docs/estimators.md, 'EKF algebra').
 
     Parameters
     ----------
@@ -237,7 +281,7 @@ def limit_variances(P, min_var, max_var):
 
     Variances below the floor are raised to it (adding a diagonal term keeps P positive semi-definite);
     variances above the cap are scaled down with their row and column (correlations kept; e.g. the yaw standard
-    deviation is capped at 180 deg, math note 7.2).
+    deviation is capped at 180 deg, docs/estimators.md, 'Divergence and covariance repair').
     """
     n = P.shape[0]
     for i in range(n):

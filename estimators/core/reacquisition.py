@@ -13,7 +13,7 @@ import numpy as np
 from numba import njit
 
 # ----------------------------------------------------------------------------------------------------------------
-# GPS re-acquisition (math note 2.3)
+# GPS re-acquisition (docs/estimators.md, 'GPS re-acquisition')
 #
 # The monitor is a float64 array: the last position and velocity event times, a "reset pending" flag per kind
 # (a reset triggered at one kind's event resets the other kind's states at its next event; at one GPS epoch the
@@ -77,7 +77,7 @@ def gps_acquired(mon, t):
 @njit(cache=True)
 def gps_reset_due(mon, position, t, reject_s, outage_s):
     """Decide at a GPS position (``position``) or velocity event at ``t`` [s] whether its states are reset to the
-    GPS instead of updated (math note 2.3), and update the monitor.
+    GPS instead of updated (docs/estimators.md, 'GPS re-acquisition'), and update the monitor.
 
     A reset is due when a reset triggered at the other kind's event is pending, when this kind returns after an
     outage longer than ``outage_s``, or when any GPS channel (position or velocity) has been rejected

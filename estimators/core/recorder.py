@@ -1,4 +1,5 @@
-"""Diagnostics and output recorders of the filters' kernels, and the counter slots they share (docs/estimators.md, 'Recorder').
+"""Diagnostics and output recorders of the filters' kernels, and the counter slots they share (docs/estimators.md,
+'Recorder').
 
 One row per scalar update, :data:`DIAG_FLOAT_COLUMNS` / :data:`DIAG_INT_COLUMNS` (allocated by
 :func:`diagnostics_arrays`): ``diag_f[k] = (time_s, innovation, innovation_var, nis)`` and
@@ -21,7 +22,7 @@ DIAG_INT_COLUMNS = ("sensor", "component", "accepted")
 C_DIAG = 0  # diagnostics rows written (record_update)
 C_DIAG_DROPPED = 1  # diagnostics rows dropped (record_update)
 C_RESETS = 2  # divergence resets
-C_GPS_RESETS = 3  # GPS re-acquisition resets (math note 2.3)
+C_GPS_RESETS = 3  # GPS re-acquisition resets (docs/estimators.md, 'GPS re-acquisition')
 C_REPAIRS = 4  # covariance eigenvalue repairs
 C_UPDATES = 5  # scalar updates attempted
 C_OUTPUTS = 6  # output epochs written

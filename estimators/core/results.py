@@ -50,11 +50,11 @@ class EstimatorReport:
     skipped : dict of str -> str
         Sensor -> reason it was not used.
     degradations : tuple of str
-        Degraded modes applied (math note 7).
+        Degraded modes applied (docs/estimators.md, 'Sensor plan').
     resets : int
         Divergence resets (non-finite state or covariance -> last healthy state, initial covariance).
     gps_resets : int
-        Position/velocity resets to GPS after a long rejection or outage (math note 2.3).
+        Position/velocity resets to GPS after a long rejection or outage (docs/estimators.md, 'GPS re-acquisition').
     covariance_repairs : int
         Covariance matrices that failed the positive-definiteness test and were repaired.
     n_imu_samples : int

@@ -24,7 +24,7 @@ MAG_DIP_TOLERANCE_DEG = 15.0
 
 
 # ----------------------------------------------------------------------------------------------------------------
-# initial alignment (math note 5.5)
+# initial alignment (docs/estimators.md, 'Initial alignment')
 
 
 def still_window(imu: ImuSamples, gravity_m_s2: float, config: EstimatorConfig) -> tuple[int, int] | None:
@@ -86,7 +86,8 @@ def tilt_from_specific_force(f_b: np.ndarray) -> tuple[float, float]:
 
 def yaw_from_magnetometer(m_b: np.ndarray, roll_rad: float, pitch_rad: float, field_ned: np.ndarray) -> float:
     """Yaw [rad] from a body-frame vector whose NED direction ``field_ned`` is known (magnetic field or sun),
-    tilt-compensated (math note 3.2): the level-frame vector ``Ry(theta) Rx(phi) m_b`` has heading ``D - psi``
+    tilt-compensated (docs/three_stage.md, 'Stage 2: heading'): the level-frame vector ``Ry(theta) Rx(phi) m_b`` has
+    heading ``D - psi``
     with D the heading of the reference vector (the declination for the magnetic field)."""
     cr, sr = math.cos(roll_rad), math.sin(roll_rad)
     cp, sp = math.cos(pitch_rad), math.sin(pitch_rad)
@@ -151,7 +152,8 @@ def initial_alignment(flight_log: FlightLog, imu: ImuSamples, gps: GpsRows | Non
         else:
             yaw, yaw_source = yaw_from_magnetometer(m_b, roll, pitch, mag_field), "mag"
     if yaw_source == "none" and sun is not None and len(sun[0]):
-        # gravity + sun (math note 5.5 "TRIAD"): the sun's horizontal direction, tilt-compensated like the field
+        # gravity + sun (docs/estimators.md, 'Initial alignment' "TRIAD"): the sun's horizontal direction,
+        # tilt-compensated like the field
         t_end = still_s[1] if still_s is not None else sun[0][0] + 0.5
         sel = sun[0] <= max(t_end, sun[0][0])
         s_b, s_n = sun[2][sel, 0:3].mean(axis=0), sun[2][sel, 3:6].mean(axis=0)

@@ -1,5 +1,6 @@
 """Orchestration shared by the three filters: a :class:`~ingest.flightlog.FlightLog` -> the flat, time-sorted
-arrays the numba kernels loop over (math note 1.4, 2.1, 5.5 and 7).
+arrays the numba kernels loop over (docs/estimators.md, 'Inputs'; docs/estimators.md, 'Scheduling rule';
+docs/estimators.md, 'Initial alignment'; docs/estimators.md, 'Sensor plan').
 
 What this module decides, once, for every estimator:
 
@@ -16,13 +17,15 @@ What this module decides, once, for every estimator:
   without that parameter the logged ``sample_time_s``, else the PX4 default delay
   (:func:`gps_measurement_time_s`). Output epochs
   (``OUTPUT``) are events too, on the grid ``k / rate_hz`` of the log clock.
-* **Sensor plan**: which sensors are usable, which are skipped and why, and the degradations of math note 7
+* **Sensor plan**: which sensors are usable, which are skipped and why, and the degradations of docs/estimators.md,
+'Sensor plan'
   (no airspeed -> no wind states and no airspeed; multicopter -> no fixed-wing pseudo-measurements; no GPS ->
   attitude and height only, with a zero-velocity pseudo-measurement keeping the tilt observable; no magnetometer
   -> yaw dead-reckoned).
-* **Origin** (first good GPS fix, math note 1.1), the earth magnetic field there (World Magnetic Model at the
+* **Origin** (first good GPS fix, docs/estimators.md, 'Frames and attitude identities'), the earth magnetic field there
+(World Magnetic Model at the
   log's date), the barometer offset to GPS height and the **initial alignment** from the first still seconds
-  (math note 5.5).
+  (docs/estimators.md, 'Initial alignment').
 
 Event values per kind (unused slots are 0; variances are per component):
 
@@ -75,14 +78,16 @@ from estimators.inputs.records import (
 from ingest.errors import InputError
 from ingest.flightlog import FlightLog
 
-#: GPS rows with a worse horizontal accuracy [m] are not used (math note 7: eph < 10 m); the origin needs < 5 m.
+#: GPS rows with a worse horizontal accuracy [m] are not used (docs/estimators.md, 'Sensor plan': eph < 10 m); the
+#: origin needs < 5 m.
 GPS_MAX_EPH_M = 10.0
 GPS_ORIGIN_MAX_EPH_M = 5.0
-#: Magnetometer stream accepted when its median field strength lies in this range [gauss] (math note 7).
+#: Magnetometer stream accepted when its median field strength lies in this range [gauss] (docs/estimators.md, 'Sensor
+#: plan').
 MAG_STRENGTH_RANGE_GAUSS = (0.15, 1.0)
 #: Horizontal accuracy assumed when a receiver reports none [m] (Table 1: NEO-M8N 2.5 m).
 GPS_DEFAULT_EPH_M = 2.5
-#: Seconds of GPS used to estimate the barometer offset (math note 3.0).
+#: Seconds of GPS used to estimate the barometer offset (docs/three_stage.md, 'Pre-processing').
 BARO_OFFSET_WINDOW_S = 10.0
 #: Decimal year used for the magnetic model when a log carries no UTC time.
 FALLBACK_DECIMAL_YEAR = 2020.0
@@ -400,7 +405,8 @@ def _gps_events(gps: GpsRows, origin: Origin, config: EstimatorConfig):
 
 
 def _baro_offset_m(baro_t: np.ndarray, baro_alt: np.ndarray, gps: GpsRows) -> float:
-    """Median of barometric minus GPS altitude over the first seconds with a fix (math note 3.0)."""
+    """Median of barometric minus GPS altitude over the first seconds with a fix
+    (docs/three_stage.md, 'Pre-processing')."""
     window = gps.time_s <= gps.time_s[0] + BARO_OFFSET_WINDOW_S
     t = gps.time_s[window]
     inside = (t >= baro_t[0]) & (t <= baro_t[-1])
@@ -502,7 +508,7 @@ def _pseudo_times(t_start: float, t_end: float, rate_hz: float) -> np.ndarray:
 
 def _airborne(times: np.ndarray, airspeed, gps: GpsRows | None, config: EstimatorConfig) -> np.ndarray:
     """Flying (fixed-wing models valid) at ``times``: last airspeed above the minimum, else GPS ground speed above
-    V_min (math note 7.5)."""
+    V_min (docs/estimators.md, 'Sensor plan')."""
     if airspeed is not None:
         t, value, threshold = airspeed[0], airspeed[1][:, 0], config.timing.min_airspeed_m_s
     elif gps is not None:

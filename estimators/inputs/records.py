@@ -116,7 +116,7 @@ class MeasurementEvents:
 
 @dataclass(frozen=True)
 class Origin:
-    """Local NED origin (math note 1.1).
+    """Local NED origin (docs/estimators.md, 'Frames and attitude identities').
 
     Attributes
     ----------
@@ -136,7 +136,7 @@ class Origin:
 
 @dataclass(frozen=True)
 class Alignment:
-    """Initial state (math note 5.5).
+    """Initial state (docs/estimators.md, 'Initial alignment').
 
     Attributes
     ----------
@@ -170,7 +170,7 @@ class Alignment:
 
 @dataclass(frozen=True)
 class SensorPlan:
-    """What a replay can use (math note 7).
+    """What a replay can use (docs/estimators.md, 'Sensor plan').
 
     Attributes
     ----------
@@ -218,7 +218,7 @@ class ReplayInputs:
         ``"wmm"`` (World Magnetic Model at origin and date) or ``"declination_parameter"`` (no position: the
         log's declination parameter and the measured inclination).
     gravity_m_s2 : float
-        Local normal gravity at the origin [m/s^2] (math note 1.2).
+        Local normal gravity at the origin [m/s^2] (docs/estimators.md, 'Frames and attitude identities').
     gps_delay_s : float
         GPS latency [s] (:func:`gps_measurement_time_s`).
     gps_time_rule : str

@@ -42,7 +42,8 @@ def _cross_matrix_times(h, w):
 def sun_jacobian_euler(r_nb, s_ned):
     """``dh/dTheta = [h]x W(Theta)`` for ZYX Euler angles Theta = (roll, pitch, yaw), shape (3, 3) [1/rad].
 
-    ``W = [[1, 0, -s_th], [0, c_ph, s_ph c_th], [0, -s_ph, c_ph c_th]]`` (omega = W Theta_dot, note 1.1) is built
+    ``W = [[1, 0, -s_th], [0, c_ph, s_ph c_th], [0, -s_ph, c_ph c_th]]`` (omega = W Theta_dot, docs/estimators.md,
+    'Frames and attitude identities') is built
     from ``r_nb`` itself (``R31 = -s_th``, ``R32 = s_ph c_th``, ``R33 = c_ph c_th``); singular at pitch +-90 deg.
 
     Parameters
@@ -82,7 +83,8 @@ def sun_tangent_basis(h):
     """Orthonormal basis of the plane perpendicular to ``h`` (normalised first), shape (3, 2), columns
     ``(t1, u x t1)`` with ``u = h / |h|``; the one tangent basis of the three filters' sun updates.
 
-    For the 2-DOF form of the update (note 8.5): ``nu = T^T z``, ``H' = T^T H``, ``R' = sigma_rad^2 I_2``.
+    For the 2-DOF form of the update (docs/sun.md, 'Measurement model'): ``nu = T^T z``, ``H' = T^T H``, ``R' =
+    sigma_rad^2 I_2``.
     """
     norm = np.sqrt(h[0] * h[0] + h[1] * h[1] + h[2] * h[2])
     u0, u1, u2 = h[0] / norm, h[1] / norm, h[2] / norm
@@ -104,7 +106,8 @@ def sun_tangent_basis(h):
 
 @njit(cache=True)
 def tangent_projection(basis, axis, z, h3, H3, H):
-    """One scalar of the 2-DOF sun update (note 8.5): the innovation ``nu = t^T (z - h)`` along the tangent axis
+    """One scalar of the 2-DOF sun update (docs/sun.md, 'Measurement model'): the innovation ``nu = t^T (z - h)`` along
+    the tangent axis
     ``t = basis[:, axis]`` and its Jacobian row ``H = t^T H3`` (written into ``H``, length n).
 
     ``z``: measured body-frame unit vector (its first 3 entries); ``h3`` (3,) and ``H3`` (3, n): predicted vector

@@ -1,7 +1,8 @@
 """The sun vector the photocells should see, from an attitude reference and the ephemeris, against the solved one.
 
 For a log with a ``sun`` stream (photocell currents) this module answers "how good is the photocell sun vector?"
-without running an estimator: the NREL SPA sun direction at the vehicle's GPS position (math note 8.1) rotated
+without running an estimator: the NREL SPA sun direction at the vehicle's GPS position (docs/sun.md, 'Measurement
+model') rotated
 into the body frame by a reference attitude,
 
     s_b,pred = C_bn s_n = R_nb^T s_n,
@@ -31,7 +32,8 @@ ATTITUDE_STREAMS = {"onboard": "onboard_attitude", "truth": "truth_attitude"}
 #: Order in which a reference is chosen for the solver's up vector: the autopilot's estimate (what a real flight
 #: has), the ground truth only for logs without one.
 UP_VECTOR_PREFERENCE = ("onboard", "truth")
-#: The ephemeris is evaluated on this grid [s] and interpolated (the sun moves < 0.005 deg/s, math note 8.1).
+#: The ephemeris is evaluated on this grid [s] and interpolated (the sun moves < 0.005 deg/s, docs/sun.md, 'Measurement
+#: model').
 EPHEMERIS_STEP_S = 1.0
 #: GPS rows used for the observer position: 3D fix or better.
 MIN_GPS_FIX_TYPE = 3
@@ -86,7 +88,8 @@ def sun_ned_at(flight_log: FlightLog, time_s, origin=None) -> tuple[np.ndarray, 
     observer position.
 
     The NREL SPA ephemeris (:func:`estimators.environment.sun_direction_ned`) is evaluated every
-    :data:`EPHEMERIS_STEP_S` (the sun moves < 0.005 deg/s, math note 8.1) and interpolated to ``time_s``; the
+    :data:`EPHEMERIS_STEP_S` (the sun moves < 0.005 deg/s, docs/sun.md, 'Measurement model') and interpolated to
+    ``time_s``; the
     one place the replay, ``solarnav sun`` and the app evaluate it.
 
     Parameters

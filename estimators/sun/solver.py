@@ -1,10 +1,10 @@
 """Sun vector from the currents of the 7-photocell sun device, and its EKF measurement model.
 
-Design note section 8 (the PV paper, seed 003, reconstructed). Frames and cells follow ``ingest.sun_device``:
+docs/sun.md, 'Solvers' (the PV paper, seed 003, reconstructed). Frames and cells follow ``ingest.sun_device``:
 device frame x forward, y right, z down; cell 1 (column ``i1_a``) is the top cell with outward normal
 (0, 0, -1); cells 2..7 are the side cells n_i = (sin a cos az_i, sin a sin az_i, -cos a).
 
-Current model (note 8.2, with the isotropic-sky view factor the note's [FLAG] mentions)::
+Current model (docs/sun.md, 'Current model', with the isotropic-sky view factor the note's [FLAG] mentions)::
 
     I_i = k max(0, n_i . s) + I_sky (1 + n_i . u) / 2 + noise
 
@@ -19,7 +19,7 @@ Solvers
 * :func:`solve_sun_ls` -- least squares over all seven cells (seed 003 eqs 13-14 idea: the currents are linear in
   ``k s`` through the matrix of cell normals; the sky current is solved jointly from the device geometry, note
   8.4 (1)); ``s = x / |x|``, ``k = |x|``. Right only when every cell is lit and healthy.
-* :func:`solve_sun_adaptive` -- adaptive least squares (note 8.4), per epoch in a numba kernel
+* :func:`solve_sun_adaptive` -- adaptive least squares (docs/sun.md, 'Solvers'), per epoch in a numba kernel
   (:func:`_solve_epoch`): a first solution from the five largest currents screens the other cells; then
   classify each cell as lit (incidence < ``max_incidence_deg``), dark (``n . s < dark_cos_max``: it carries only
   sky light, so it measures ``I_sky``) or grazing (not used); solve the joint least squares; exclude the cell
@@ -36,10 +36,11 @@ Solvers
   inconsistent fit that cannot be repaired, or a ``k`` below ``k_min`` (clouds, night).
 
 Quality: with ``sigma`` the per-cell current error (noise plus ``model_error_rel * k``), ``Cov(x) = sigma^2
-(A^T A)^-1`` and ``Sigma_s = P Cov(x)_xx P / k^2`` with ``P = I - s s^T`` (note 8.3); ``sigma_rad`` is the
+(A^T A)^-1`` and ``Sigma_s = P Cov(x)_xx P / k^2`` with ``P = I - s s^T`` (docs/sun.md, 'Quality'); ``sigma_rad`` is the
 per-axis 1-sigma angle ``sqrt(trace(Sigma_s) / 2)``.
 
-Measurement model (note 8.5, numba leaf functions for the filters): ``z = s_b``, ``h = C_bn s_n = R_nb^T s_n``,
+Measurement model (docs/sun.md, 'Measurement model', numba leaf functions for the filters): ``z = s_b``, ``h = C_bn s_n
+= R_nb^T s_n``,
 ``dh/dTheta = [h]x W(Theta)`` for ZYX Euler angles, ``dh/d(dtheta) = [h]x`` for the body-axes error angle of the
 error-state filter (``R = R_hat Exp(dtheta)``); noise ``R = sigma_rad^2 I``.
 """
@@ -67,7 +68,8 @@ from ingest.sun_device import N_CELLS, SunDevice
 
 @dataclass(frozen=True)
 class SunSolverConfig:
-    """Thresholds of the sun-vector solvers (note 8.4; reconstructed defaults, not the PV paper's numbers).
+    """Thresholds of the sun-vector solvers (docs/sun.md, 'Solvers'; reconstructed defaults, not the PV paper's
+    numbers).
 
     Attributes
     ----------
@@ -209,7 +211,8 @@ def solve_sun_ls(currents_a, device: SunDevice, noise_a: float, up_device=None,
     """Least-squares unit sun vector from all seven cells (no cell selection, no validity tests).
 
     Solves ``[N, f] (k s, I_sky) = I`` over every cell (``N``: cell normals, ``f``: sky view factors), then
-    ``s = x / |x|``, ``k = |x|`` (note 8.3 with the sky current of 8.4 (1)). Exact when all cells are lit and
+    ``s = x / |x|``, ``k = |x|`` (docs/sun.md, 'Quality' with the sky current of 8.4 (1)). Exact when all cells are lit
+    and
     healthy; biased when some are dark, shaded or faulty -- the baseline :func:`solve_sun_adaptive` improves on.
 
     Parameters
@@ -261,7 +264,8 @@ def solve_sun_adaptive(currents_a, device: SunDevice, noise_a: float, up_device=
                        config: SunSolverConfig | None = None) -> SunSolution:
     """Adaptive least-squares unit sun vector with lit-cell selection, sky removal and fault exclusion.
 
-    Algorithm in the module docstring (note 8.4). The per-epoch numba kernel runs twice: pass 1 without priors,
+    Algorithm in the module docstring (docs/sun.md, 'Solvers'). The per-epoch numba kernel runs twice: pass 1 without
+    priors,
     pass 2 with the priors on the sky current (1-sigma at least ``noise_a``) and on ``k`` (at least
     ``model_error_rel * k``) that :func:`_robust_prior` derives from pass 1. About 5 us per epoch and pass with
     a faulty cell (which triggers the alternative hypotheses), less without.
