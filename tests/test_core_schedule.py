@@ -94,3 +94,28 @@ def test_empty_and_single_row_inputs():
     op, _, index = build_schedule(np.array([1.0]), np.array([1.0]), np.array([OUTPUT]), np.array([0]), COV_DT_S,
                                   math.inf)
     assert list(op) == [EVENT] and list(index) == [0]
+
+
+def test_only_the_fused_kinds_force_a_covariance_propagation():
+    imu_t, ev_t, ev_kind, ev_imu = _time_line(1)
+    op, dt, index = build_schedule(imu_t, ev_t, ev_kind, ev_imu, COV_DT_S, math.inf, fused_kinds=(MAG, GPS_POS))
+    pending, stale_baro = 0.0, 0
+    for code, step, i in zip(op, dt, index, strict=True):
+        if code == PROPAGATE:
+            pending += step
+        elif code == COVARIANCE:
+            pending = 0.0
+        elif code == EVENT and ev_kind[i] in (MAG, GPS_POS):
+            assert pending == 0.0
+        elif code == EVENT and ev_kind[i] == BARO:
+            stale_baro += pending > 0.0
+    assert stale_baro > 0  # a kind the filter does not fuse leaves the covariance as it is
+    all_kinds = build_schedule(imu_t, ev_t, ev_kind, ev_imu, COV_DT_S, math.inf)[0]
+    assert (all_kinds == COVARIANCE).sum() > (op == COVARIANCE).sum()
+
+
+def test_no_periodic_update_before_time_has_passed():
+    imu_t, ev_t, ev_kind, ev_imu = _time_line(2)
+    op, dt, _ = build_schedule(imu_t, ev_t, ev_kind, ev_imu, COV_DT_S, 0.02)
+    first = np.flatnonzero(op == PERIODIC)[0]
+    assert (op[:first] == PROPAGATE).any() and dt[first] > imu_t[0]

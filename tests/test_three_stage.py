@@ -16,12 +16,15 @@ from estimators_synthetic import synthetic_flight
 
 from estimators.api import run_estimators
 from estimators.config import EstimatorConfig
-from estimators.core import state_table
+from estimators.core import recorder, state_table
 from estimators.core.results import STATE_COLUMNS
 from estimators.evaluation import PAPER_TABLE_2, config_for_simulation, rms_errors
 from estimators.inputs import alignment, build, records
-from estimators.three_stage import kernel as three_stage
+from estimators.three_stage import kernel as ts_kernel
+from estimators.three_stage import measurements as meas
 from estimators.three_stage import model as m
+from estimators.three_stage import run as three_stage
+from estimators.three_stage import stages
 from ingest import load_flight_log
 from ingest.frames import euler_to_matrix
 from ingest.sun_log import with_sun
@@ -102,8 +105,8 @@ def test_stage1_C_airspeed_matches_finite_differences(rng):
         x = np.array(random_attitude(rng)[:2])
         rates = rng.normal(0, 0.5, 3)
         va = rng.uniform(0, 30)
-        numerical = numerical_jacobian(lambda s, *a: m.stage1_h_airspeed(s, *a)[0], x, rates, va, GRAVITY)
-        np.testing.assert_allclose(m.stage1_h_airspeed(x, rates, va, GRAVITY)[1], numerical, rtol=RTOL, atol=ATOL)
+        numerical = numerical_jacobian(lambda s, *a: meas.stage1_h_airspeed(s, *a)[0], x, rates, va, GRAVITY)
+        np.testing.assert_allclose(meas.stage1_h_airspeed(x, rates, va, GRAVITY)[1], numerical, rtol=RTOL, atol=ATOL)
 
 
 def test_stage1_h_airspeed_is_steady_flight_specific_force(rng):
@@ -114,7 +117,7 @@ def test_stage1_h_airspeed_is_steady_flight_specific_force(rng):
         va = rng.uniform(0, 30)
         v_b = va * np.array([np.cos(theta), 0.0, np.sin(theta)])
         expected = np.cross(rates, v_b) - euler_to_matrix(phi, theta, psi).T @ [0.0, 0.0, GRAVITY]
-        np.testing.assert_allclose(m.stage1_h_airspeed(np.array([phi, theta]), rates, va, GRAVITY)[0], expected,
+        np.testing.assert_allclose(meas.stage1_h_airspeed(np.array([phi, theta]), rates, va, GRAVITY)[0], expected,
                                    rtol=1e-12, atol=1e-12)
 
 
@@ -124,15 +127,15 @@ def test_stage1_acceleration_form(rng):
         phi, theta, psi = random_attitude(rng)
         x = np.array([phi, theta])
         accel = rng.normal(0, 3, 3)
-        h, c = m.stage1_h_acceleration(x, psi, accel, GRAVITY)
+        h, c = meas.stage1_h_acceleration(x, psi, accel, GRAVITY)
         expected = euler_to_matrix(phi, theta, psi).T @ (accel - [0.0, 0.0, GRAVITY])
         np.testing.assert_allclose(h, expected, rtol=1e-12, atol=1e-12)
-        numerical = numerical_jacobian(lambda s, *a: m.stage1_h_acceleration(s, *a)[0], x, psi, accel,
+        numerical = numerical_jacobian(lambda s, *a: meas.stage1_h_acceleration(s, *a)[0], x, psi, accel,
                                        GRAVITY)
         np.testing.assert_allclose(c, numerical, rtol=RTOL, atol=ATOL)
-        h0, c0 = m.stage1_h_acceleration(x, psi, np.zeros(3), GRAVITY)
+        h0, c0 = meas.stage1_h_acceleration(x, psi, np.zeros(3), GRAVITY)
         rates = rng.normal(0, 0.5, 3)
-        h_va0, c_va0 = m.stage1_h_airspeed(x, rates, 0.0, GRAVITY)
+        h_va0, c_va0 = meas.stage1_h_airspeed(x, rates, 0.0, GRAVITY)
         np.testing.assert_allclose(h0, h_va0, atol=1e-12)
         np.testing.assert_allclose(c0, c_va0, atol=1e-12)
 
@@ -154,13 +157,13 @@ def test_stage2_h_and_jacobians(rng):
     for _ in range(N_RANDOM):
         phi, theta, psi = random_attitude(rng)
         ref = unit(rng.normal(size=3))
-        h, c, j_tilt = m.stage2_h(psi, phi, theta, ref)
+        h, c, j_tilt = meas.stage2_h(psi, phi, theta, ref)
         np.testing.assert_allclose(h, euler_to_matrix(phi, theta, psi).T @ ref, rtol=1e-12, atol=1e-12)
-        np.testing.assert_allclose(c, numerical_jacobian(lambda s, *a: m.stage2_h(s[0], *a)[0], [psi], phi, theta, ref),
-                                   rtol=RTOL, atol=ATOL)
-        numerical_tilt = numerical_jacobian(lambda s, a, v: m.stage2_h(a, s[0], s[1], v)[0], [phi, theta], psi, ref)
+        numerical = numerical_jacobian(lambda s, *a: meas.stage2_h(s[0], *a)[0], [psi], phi, theta, ref)
+        np.testing.assert_allclose(c, numerical, rtol=RTOL, atol=ATOL)
+        numerical_tilt = numerical_jacobian(lambda s, a, v: meas.stage2_h(a, s[0], s[1], v)[0], [phi, theta], psi, ref)
         np.testing.assert_allclose(j_tilt, numerical_tilt, rtol=RTOL, atol=ATOL)
-        # the explicit corrected eq 25 of the math note (T11), row by row
+        # the explicit corrected eq 25 (docs/three_stage.md, 'Corrections to the paper'), row by row
         cph, sph, cth, sth, cps, sps = (np.cos(phi), np.sin(phi), np.cos(theta), np.sin(theta), np.cos(psi),
                                         np.sin(psi))
         eq25 = [-cth * sps * ref[0] + cth * cps * ref[1],
@@ -233,17 +236,17 @@ def test_stage3_fw_wind_pseudo_measurement(rng):
     for _ in range(N_RANDOM):
         x, u = random_fw_state(rng)
         vah, psi = u[0], u[5]
-        _, c = m.stage3_fw_h_wind(x, vah, psi)
-        np.testing.assert_allclose(c, numerical_jacobian(lambda s, *a: m.stage3_fw_h_wind(s, *a)[0], x, vah, psi),
+        _, c = meas.stage3_fw_h_wind(x, vah, psi)
+        np.testing.assert_allclose(c, numerical_jacobian(lambda s, *a: meas.stage3_fw_h_wind(s, *a)[0], x, vah, psi),
                                    rtol=RTOL, atol=ATOL)
-        numerical_inputs = numerical_jacobian(lambda w, s: m.stage3_fw_h_wind(s, w[0], w[1])[0], [vah, psi], x)
-        np.testing.assert_allclose(m.stage3_fw_wind_input_jacobian(x, vah, psi), numerical_inputs,
+        numerical_inputs = numerical_jacobian(lambda w, s: meas.stage3_fw_h_wind(s, w[0], w[1])[0], [vah, psi], x)
+        np.testing.assert_allclose(meas.stage3_fw_wind_input_jacobian(x, vah, psi), numerical_inputs,
                                    rtol=RTOL, atol=ATOL)
         # an exact wind triangle (at the corrected heading) gives a zero residual
         heading = m.corrected_heading(x, psi)[0]
         x[2:4] = [np.hypot(vah * np.cos(heading) + x[4], vah * np.sin(heading) + x[5]),
                   np.arctan2(vah * np.sin(heading) + x[5], vah * np.cos(heading) + x[4])]
-        np.testing.assert_allclose(m.stage3_fw_h_wind(x, vah, psi)[0], 0.0, atol=1e-12)
+        np.testing.assert_allclose(meas.stage3_fw_h_wind(x, vah, psi)[0], 0.0, atol=1e-12)
 
 
 def test_corrected_heading_derivatives(rng):
@@ -266,16 +269,16 @@ def test_stage3_fw_zero_deviation_is_the_paper_model(rng):
         unbiased[6:] = 0.0
         np.testing.assert_allclose(m.stage3_fw_f(x, u, GRAVITY), m.stage3_fw_f(unbiased, shifted, GRAVITY),
                                    rtol=1e-12, atol=1e-12)
-        np.testing.assert_allclose(m.stage3_fw_h_wind(x, u[0], u[5])[0],
-                                   m.stage3_fw_h_wind(unbiased, u[0], shifted[5])[0], rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(meas.stage3_fw_h_wind(x, u[0], u[5])[0],
+                                   meas.stage3_fw_h_wind(unbiased, u[0], shifted[5])[0], rtol=1e-12, atol=1e-12)
 
 
 def test_stage3_fw_gps_velocity_model(rng):
     for _ in range(N_RANDOM):
         x, _ = random_fw_state(rng)
-        h, c = m.stage3_fw_h_gps_velocity(x)
+        h, c = meas.stage3_fw_h_gps_velocity(x)
         np.testing.assert_allclose(h, x[2] * np.array([np.cos(x[3]), np.sin(x[3])]), rtol=1e-12)
-        np.testing.assert_allclose(c, numerical_jacobian(lambda s: m.stage3_fw_h_gps_velocity(s)[0], x),
+        np.testing.assert_allclose(c, numerical_jacobian(lambda s: meas.stage3_fw_h_gps_velocity(s)[0], x),
                                    rtol=RTOL, atol=ATOL)
 
 
@@ -296,6 +299,33 @@ def test_ned_acceleration_at_rest_is_zero(rng):
         f_b = euler_to_matrix(phi, theta, psi).T @ [0.0, 0.0, -GRAVITY]
         a = m.ned_acceleration(phi, theta, psi, f_b, GRAVITY)
         np.testing.assert_allclose(a, 0.0, atol=1e-12)
+
+
+# ---------------------------------------------------------------- vector updates
+
+
+def test_whitened_vector_update_equals_the_batch_update(rng):
+    """A correlated vector measurement, whitened with the Cholesky factor of R and fused by sequential scalar
+    updates (the stage-2 and wind updates), gives the batch Kalman update x + K nu, (I - K H) P."""
+    n, m_components = 4, 3
+    w, mw = ts_kernel._stage_work(n, 2, 6), ts_kernel._measurement_work()
+    diag_f, diag_i = recorder.diagnostics_arrays(8)
+    counters = np.zeros(ts_kernel.N_COUNTERS, dtype=np.int64)
+    for _ in range(N_RANDOM):
+        a = rng.normal(size=(n, n))
+        P = a @ a.T + 0.1 * np.eye(n)
+        b = rng.normal(size=(m_components, m_components))
+        R = b @ b.T + 0.1 * np.eye(m_components)
+        H, nu, x = rng.normal(size=(m_components, n)), rng.normal(size=(m_components, 1)), rng.normal(size=n)
+        S = H @ P @ H.T + R
+        gain = P @ H.T @ np.linalg.inv(S)
+        expected_x, expected_P = x + gain @ nu[:, 0], (np.eye(n) - gain @ H) @ P
+        counters[:] = 0
+        passed = stages.whitened_update(0.0, records.MAG, x, P, m_components, nu.copy(), H.copy(), R.copy(), np.inf,
+                                        w, mw, diag_f, diag_i, counters)
+        assert passed
+        np.testing.assert_allclose(x, expected_x, rtol=1e-9, atol=1e-9)
+        np.testing.assert_allclose(P, expected_P, rtol=1e-9, atol=1e-9)
 
 
 # ---------------------------------------------------------------- state tables
@@ -340,7 +370,7 @@ TWIN_SCRIPT = """
 import sys
 from estimators_synthetic import synthetic_flight
 from estimators.inputs import build
-from estimators.three_stage import kernel as three_stage
+from estimators.three_stage import run as three_stage
 from estimators.api import run_estimators
 from estimators.config import EstimatorConfig
 log = synthetic_flight(10.0, seed=3, mav_type={mav_type}, with_airspeed={with_airspeed})
@@ -559,6 +589,6 @@ def test_measured_heading_inverts_the_body_vector_model(rng):
         z_body = euler_to_matrix(phi, theta, psi).T @ ref
         if np.hypot(*(euler_to_matrix(phi, theta, 0.0) @ z_body)[:2]) < 0.3:
             continue
-        heading = three_stage.measured_heading(z_body, ref, phi, theta)
+        heading = meas.measured_heading(z_body, ref, phi, theta)
         assert abs(np.angle(np.exp(1j * (heading - psi)))) < 1e-9
-    assert np.isnan(three_stage.measured_heading(np.array([0.0, 0.0, 1.0]), np.array([0.0, 0.0, 1.0]), 0.0, 0.0))
+    assert np.isnan(meas.measured_heading(np.array([0.0, 0.0, 1.0]), np.array([0.0, 0.0, 1.0]), 0.0, 0.0))

@@ -10,12 +10,14 @@ between them carries no scheduling difference:
 * ``COVARIANCE``: propagate the covariance over the time accumulated since the last ``COVARIANCE`` (mean input,
   transition at the state at the start of the interval). Emitted when the accumulated time reaches the
   covariance interval ``1 / covariance_rate_hz``, **before every measurement update** (every update sees the
-  covariance at its own time) and once at the end. Output epochs do not force one: an output reports the
-  covariance as last propagated, at most one covariance interval old.
+  covariance at its own time; the filter names the event kinds it fuses, e.g. the three-stage filter low-passes
+  the barometer and the airspeed as inputs instead) and once at the end. Output epochs do not force one: an output
+  reports the covariance as last propagated, at most one covariance interval old.
 * ``EVENT`` (``event``): the measurement update or the output (``OUTPUT`` kind) of event ``event``.
 * ``PERIODIC``: a filter's own update at a fixed period (the three-stage filter's accelerometer update), at the
-  end of the first IMU row at or after each period boundary, preceded by a ``COVARIANCE``; the next boundary is
-  ``max(boundary + period, t + period / 2)``. Not emitted with an infinite period.
+  end of the first IMU row at or after each period boundary once time has been propagated since the last one,
+  preceded by a ``COVARIANCE``; the next boundary is ``max(boundary + period, t + period / 2)``. Not emitted with
+  an infinite period.
 
 The schedule is a pure function of the times (numba, allocation of the four output arrays only).
 """
@@ -27,13 +29,14 @@ import math
 import numpy as np
 from numba import njit
 
-from estimators.inputs.records import OUTPUT
+from estimators.inputs.records import OUTPUT, SENSOR_NAMES
 
 PROPAGATE = 0
 COVARIANCE = 1
 EVENT = 2
 PERIODIC = 3
 
+N_KINDS = len(SENSOR_NAMES)
 #: Relative tolerance of the covariance interval (an interval of 1/covariance_rate_hz made of float steps counts).
 INTERVAL_TOLERANCE = 1e-9
 
@@ -46,8 +49,8 @@ def _emit(op, dt, index, n, code, step_s, value):
     return n + 1
 
 
-@njit(cache=True)
-def build_schedule(imu_time_s, event_time_s, event_kind, event_imu_index, covariance_dt_s, periodic_dt_s):
+def build_schedule(imu_time_s, event_time_s, event_kind, event_imu_index, covariance_dt_s, periodic_dt_s,
+                   fused_kinds=None):
     """Operations of one replay (see the module docstring).
 
     Parameters
@@ -61,6 +64,9 @@ def build_schedule(imu_time_s, event_time_s, event_kind, event_imu_index, covari
         Covariance propagation interval [s].
     periodic_dt_s : float
         Period of the filter's own ``PERIODIC`` update [s]; ``inf`` for none.
+    fused_kinds : iterable of int, optional
+        Event kinds the filter fuses as measurement updates (a ``COVARIANCE`` precedes each); default every kind
+        but ``OUTPUT``.
 
     Returns
     -------
@@ -71,6 +77,18 @@ def build_schedule(imu_time_s, event_time_s, event_kind, event_imu_index, covari
     index : int64 (S,)
         ``PROPAGATE``: IMU row; ``EVENT``: event index; otherwise -1.
     """
+    fused = np.ones(N_KINDS, dtype=np.bool_)
+    if fused_kinds is not None:
+        fused[:] = False
+        fused[np.asarray(list(fused_kinds), dtype=np.int64)] = True
+    fused[OUTPUT] = False
+    return _build_schedule(np.ascontiguousarray(imu_time_s, dtype=np.float64),
+                           np.ascontiguousarray(event_time_s, dtype=np.float64), np.ascontiguousarray(event_kind),
+                           np.ascontiguousarray(event_imu_index), float(covariance_dt_s), float(periodic_dt_s), fused)
+
+
+@njit(cache=True)
+def _build_schedule(imu_time_s, event_time_s, event_kind, event_imu_index, covariance_dt_s, periodic_dt_s, fused):
     n_imu = imu_time_s.shape[0]
     n_events = event_time_s.shape[0]
     # at most two PROPAGATE (+ COVARIANCE) per row and event, one COVARIANCE + EVENT per event, two per period
@@ -87,6 +105,7 @@ def build_schedule(imu_time_s, event_time_s, event_kind, event_imu_index, covari
     periodic = math.isfinite(periodic_dt_s) and periodic_dt_s > 0.0
     next_periodic = imu_time_s[0]
     t = imu_time_s[0]
+    last_periodic = t  # a periodic update needs time propagated since the last one (or the start)
     accumulated = 0.0
     j = 0
     for k in range(n_imu):
@@ -102,19 +121,20 @@ def build_schedule(imu_time_s, event_time_s, event_kind, event_imu_index, covari
                     accumulated = 0.0
             if not at_event:
                 break
-            if event_kind[j] != OUTPUT and accumulated > 0.0:
+            if fused[event_kind[j]] and accumulated > 0.0:
                 n = _emit(op, dt, index, n, COVARIANCE, t, -1)
                 accumulated = 0.0
             n = _emit(op, dt, index, n, EVENT, t, j)
             j += 1
-        if periodic and t >= next_periodic:
+        if periodic and t >= next_periodic and t > last_periodic:
             if accumulated > 0.0:
                 n = _emit(op, dt, index, n, COVARIANCE, t, -1)
                 accumulated = 0.0
             n = _emit(op, dt, index, n, PERIODIC, t, -1)
+            last_periodic = t
             next_periodic = max(next_periodic + periodic_dt_s, t + 0.5 * periodic_dt_s)
     while j < n_events:  # events after the last IMU row (none from build_replay_inputs): handled at the last time
-        if event_kind[j] != OUTPUT and accumulated > 0.0:
+        if fused[event_kind[j]] and accumulated > 0.0:
             n = _emit(op, dt, index, n, COVARIANCE, t, -1)
             accumulated = 0.0
         n = _emit(op, dt, index, n, EVENT, t, j)

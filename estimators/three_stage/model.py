@@ -1,30 +1,29 @@
-"""Models of the three-stage series estimator (Guo et al. 2019 sec. 3.1, corrected; math note section 3).
+"""Process models of the three-stage series estimator (Guo et al. 2019 sec. 3.1, corrected; docs/three_stage.md,
+'State vectors' and 'Corrections to the paper').
 
 Every stage is written as small numba functions over float64 arrays: the state derivative ``f``, its Jacobian
-``A = df/dx``, the input-noise Jacobian ``G = df/du``, the measurement model ``h`` and its Jacobian ``C = dh/dx``.
-Analytic Jacobians only; ``tests/test_three_stage.py`` checks each against central finite differences. The
-functions the kernel calls per sample or per update allocate nothing: matrices go into optional output arrays
-(allocated when None, as the tests call them), the scalar forms take the sines and cosines the kernel shares
-between the stages, and short vectors are returned as tuples.
+``A = df/dx`` and the input-noise Jacobian ``G = df/du``; the measurement models ``h`` and their Jacobians are in
+:mod:`estimators.three_stage.measurements`. Analytic Jacobians only; ``tests/test_three_stage.py`` checks each
+against central finite differences. The functions the kernel calls per sample allocate nothing: matrices go into
+optional output arrays (allocated when None, as the tests call them), the scalar forms take the sines and cosines
+the kernel shares between the stages, and short vectors are returned as tuples.
 
 Frames and units: NED earth frame, FRD body frame, ZYX Euler angles (roll phi, pitch theta, yaw psi) [rad], body
 rates (p, q, r) [rad/s], specific force [m/s^2] (``(0, 0, -g)`` level at rest), speeds [m/s], positions [m].
 Each stage's state is laid out in a table of :class:`~estimators.core.state_table.StateSpec` rows (built from the
-configuration in :mod:`estimators.three_stage.kernel`); :func:`~estimators.core.state_table.initial_covariance` and
+configuration in :mod:`estimators.three_stage.run`); :func:`~estimators.core.state_table.initial_covariance` and
 :func:`~estimators.core.state_table.process_noise_psd` build P0 and the continuous process-noise density from it.
 
-Stages
-------
-1. roll/pitch: x = (phi, theta), u = (p, q, r, V_a); z = accelerometer (f_x, f_y, f_z). Airspeed form (eq 20/21
-   corrected, centripetal term from V_b = V_a (c_th, 0, s_th)) or the general form h = C_bn (a_n - g_n) with a
-   GPS-derived acceleration a_n (a_n = 0: gravity only, the multicopter / no-airspeed model, math note 7.1).
-2. heading: x = psi, u = (phi, theta, q, r); z = a unit reference vector in body axes (magnetometer vs WMM field,
-   or the photocell sun vector vs the SPA sun direction): h = C_bn(phi, theta, psi) v_n (eq 24/25 corrected).
-3. navigation, fixed-wing: x = (p_n, p_e, V_g, chi, w_n, w_e, dev_a, dev_b, dev_c), u = (V_a, q, r, phi, theta,
-   psi_2) (eq 26-33 corrected) with the heading psi = psi_2 - (dev_a + dev_b sin psi_2 + dev_c cos psi_2): the
-   stage-2 heading corrected by a compass-deviation model, observable through the wind triangle in turns (B&M carry
-   psi itself as a 7th state, math note 3.3 / 7.2); multicopter / no-airspeed: x = (p_n, p_e, v_n, v_e) driven by
-   the NED acceleration (math note 3.4).
+State layouts
+-------------
+1. roll/pitch: x = (phi, theta), u = (p, q, r) (docs/three_stage.md, 'Stage 1: roll and pitch').
+2. heading: x = psi, u = (phi, theta, q, r); A = 0 (docs/three_stage.md, 'Stage 2: heading').
+3. navigation, fixed-wing: x = (p_n, p_e, V_g, chi, w_n, w_e, dev_a, dev_b, dev_c) (:data:`N_STAGE3_FW` states,
+   the deviation coefficients from :data:`I_DEVIATION`), u = (V_a, q, r, phi, theta, psi_2) (eq 26-33 corrected)
+   with the heading psi = psi_2 - (dev_a + dev_b sin psi_2 + dev_c cos psi_2): the stage-2 heading corrected by a
+   compass-deviation model, observable through the wind triangle in turns (B&M carry psi itself as a 7th state);
+   multicopter / no-airspeed: x = (p_n, p_e, v_n, v_e) driven by the NED acceleration (docs/three_stage.md,
+   'Stage 3: navigation and wind').
 """
 
 from __future__ import annotations
@@ -32,66 +31,23 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-#: Ground speed below which the course is undefined and the 1/V_g terms are frozen [m/s] (math note 3.3, 7.5).
+#: Ground speed below which the course is undefined and the 1/V_g terms are frozen [m/s] (docs/three_stage.md,
+#: 'Stage 3: navigation and wind').
 MIN_GROUND_SPEED_M_S = 3.0
+#: Number of stage-3 fixed-wing states.
+N_STAGE3_FW = 9
+#: Index of the first heading-deviation coefficient in the stage-3 fixed-wing state.
+I_DEVIATION = 6
 
 
 # --------------------------------------------------------------------------------------------------------------
-# Shared attitude helpers
+# Shared attitude helper
 # --------------------------------------------------------------------------------------------------------------
-
-
-@njit(cache=True)
-def body_vector_and_euler_jacobian(v_n, phi, theta, psi, h=None, jac=None):
-    """A NED vector in body axes, h = C_bn v_n, and its Jacobian dh/d(phi, theta, psi) = [h]x W(Theta).
-
-    Parameters
-    ----------
-    v_n : ndarray or tuple, shape (3,)
-        Vector in NED [any unit].
-    phi, theta, psi : float
-        ZYX Euler angles [rad].
-    h, jac : ndarray, optional
-        Output arrays (3,) and (3, 3) (allocated when None; the kernel passes preallocated ones).
-
-    Returns
-    -------
-    h : ndarray, shape (3,)
-        The vector in body FRD [same unit].
-    jac : ndarray, shape (3, 3)
-        Columns dh/dphi, dh/dtheta, dh/dpsi (math note 1.1 identity d(R^T a)/dTheta = [R^T a]x W).
-    """
-    if h is None:
-        h = np.empty(3)
-    if jac is None:
-        jac = np.empty((3, 3))
-    cph, sph = np.cos(phi), np.sin(phi)
-    cth, sth = np.cos(theta), np.sin(theta)
-    cps, sps = np.cos(psi), np.sin(psi)
-    # C_bn = R_x(phi)^T R_y(theta)^T R_z(psi)^T: rotate by yaw, then pitch, then roll
-    a0 = cps * v_n[0] + sps * v_n[1]
-    a1 = cps * v_n[1] - sps * v_n[0]
-    b2 = sth * a0 + cth * v_n[2]
-    h[0] = cth * a0 - sth * v_n[2]
-    h[1] = cph * a1 + sph * b2
-    h[2] = cph * b2 - sph * a1
-    _cross_column(h, 1.0, 0.0, 0.0, jac, 0)  # columns of W(Theta)
-    _cross_column(h, 0.0, cph, -sph, jac, 1)
-    _cross_column(h, -sth, sph * cth, cph * cth, jac, 2)
-    return h, jac
-
-
-@njit(cache=True)
-def _cross_column(h, w0, w1, w2, jac, j):
-    """Column ``j`` of ``jac`` = h x w."""
-    jac[0, j] = h[1] * w2 - h[2] * w1
-    jac[1, j] = h[2] * w0 - h[0] * w2
-    jac[2, j] = h[0] * w1 - h[1] * w0
 
 
 @njit(cache=True)
 def euler_yaw_rate(sph, cph, cth, q, r):
-    """psi_dot = q s_ph / c_th + r c_ph / c_th [rad/s] (third row of S(Theta); eq 22 corrected, T10), from the
+    """psi_dot = q s_ph / c_th + r c_ph / c_th [rad/s] (third row of S(Theta); eq 22 corrected), from the
     roll sine and cosine and the pitch cosine (shared with the other stages by the caller)."""
     return (q * sph + r * cph) / cth
 
@@ -130,7 +86,7 @@ def stage1_rates(sph, cph, tth, p, q, r):
 
 @njit(cache=True)
 def stage1_A(x, rates, a=None):
-    """df/dx of :func:`stage1_f`, shape (2, 2) (eq 19 corrected, T7), written into ``a`` when given."""
+    """df/dx of :func:`stage1_f`, shape (2, 2) (eq 19 corrected), written into ``a`` when given."""
     if a is None:
         a = np.empty((2, 2))
     sph, cph = np.sin(x[0]), np.cos(x[0])
@@ -154,83 +110,6 @@ def stage1_G(x, g=None):
     return g
 
 
-@njit(cache=True)
-def stage1_h_airspeed(x, rates, airspeed_m_s, gravity_m_s2, h=None, c=None):
-    """Specific force of steady flight with the centripetal term from airspeed (eq 20 corrected, T8) and its
-    Jacobian (eq 21).
-
-    Assumes u_dot = v_dot = w_dot = 0 and V_b = V_a (c_th, 0, s_th) (zero flight-path angle, no sideslip), so
-    h = omega x V_b - C_bn g_n.
-
-    Parameters
-    ----------
-    x : ndarray, shape (2,)
-        (phi, theta) [rad].
-    rates : ndarray, shape (3,)
-        Body rates (p, q, r) [rad/s].
-    airspeed_m_s : float
-        True airspeed V_a [m/s] (0 gives the gravity-only model).
-    gravity_m_s2 : float
-        Local gravity [m/s^2].
-    h, c : ndarray, optional
-        Output arrays (3,) and (3, 2) (allocated when None).
-
-    Returns
-    -------
-    h : ndarray, shape (3,)
-        Predicted accelerometer reading (f_x, f_y, f_z), body FRD [m/s^2].
-    c : ndarray, shape (3, 2)
-        dh/d(phi, theta).
-    """
-    if h is None:
-        h = np.empty(3)
-    if c is None:
-        c = np.empty((3, 2))
-    sph, cph = np.sin(x[0]), np.cos(x[0])
-    sth, cth = np.sin(x[1]), np.cos(x[1])
-    p, q, r = rates[0], rates[1], rates[2]
-    va, g = airspeed_m_s, gravity_m_s2
-    h[0] = q * va * sth + g * sth
-    h[1] = r * va * cth - p * va * sth - g * cth * sph
-    h[2] = -q * va * cth - g * cth * cph
-    c[0, 0] = 0.0
-    c[0, 1] = (q * va + g) * cth
-    c[1, 0] = -g * cph * cth
-    c[1, 1] = -r * va * sth - p * va * cth + g * sph * sth
-    c[2, 0] = g * sph * cth
-    c[2, 1] = (q * va + g * cph) * sth
-    return h, c
-
-
-@njit(cache=True)
-def stage1_h_acceleration(x, yaw_rad, accel_ned_m_s2, gravity_m_s2, h=None, jac=None):
-    """Specific force from a known NED acceleration, h = C_bn(phi, theta, psi) (a_n - g_n) (math note 3.1).
-
-    Parameters
-    ----------
-    x : ndarray, shape (2,)
-        (phi, theta) [rad].
-    yaw_rad : float
-        Heading estimate psi (stage 2, previous step) [rad].
-    accel_ned_m_s2 : ndarray, shape (3,)
-        Kinematic acceleration a_n (e.g. from GPS velocity) [m/s^2]; zeros give the gravity-only model.
-    gravity_m_s2 : float
-        Local gravity [m/s^2]; g_n = (0, 0, g).
-    h, jac : ndarray, optional
-        Output arrays (3,) and (3, 3) (allocated when None); ``jac`` receives dh/d(phi, theta, psi).
-
-    Returns
-    -------
-    h : ndarray, shape (3,)
-        Predicted accelerometer reading, body FRD [m/s^2].
-    c : ndarray, shape (3, 2)
-        dh/d(phi, theta) (a view of ``jac``).
-    """
-    specific_n = (accel_ned_m_s2[0], accel_ned_m_s2[1], accel_ned_m_s2[2] - gravity_m_s2)
-    h, jac = body_vector_and_euler_jacobian(specific_n, x[0], x[1], yaw_rad, h, jac)
-    return h, jac[:, :2]
-
-
 # --------------------------------------------------------------------------------------------------------------
 # Stage 2: heading
 # --------------------------------------------------------------------------------------------------------------
@@ -243,41 +122,9 @@ def stage2_G(sph, cph, cth):
     return 0.0, sph / cth, cph / cth
 
 
-@njit(cache=True)
-def stage2_h(yaw_rad, phi, theta, ref_n, h=None, jac=None):
-    """A reference unit vector seen in body axes and its Jacobians (eq 24, eq 25 corrected, T11).
-
-    Parameters
-    ----------
-    yaw_rad : float
-        Heading state psi [rad].
-    phi, theta : float
-        Stage-1 roll and pitch [rad] (inputs).
-    ref_n : ndarray, shape (3,)
-        Reference unit vector in NED (earth magnetic field direction from WMM, or the sun direction).
-    h, jac : ndarray, optional
-        Output arrays (3,) and (3, 3) (allocated when None); ``jac`` receives dh/d(phi, theta, psi).
-
-    Returns
-    -------
-    h : ndarray, shape (3,)
-        Predicted body-frame unit vector.
-    c : ndarray, shape (3, 1)
-        dh/dpsi = h x (-s_th, s_ph c_th, c_ph c_th) (a view of ``jac``).
-    j_tilt : ndarray, shape (3, 2)
-        dh/d(phi, theta), used to inflate R by the stage-1 covariance (cascade consistency, math note 3.2).
-    """
-    h, jac = body_vector_and_euler_jacobian(ref_n, phi, theta, yaw_rad, h, jac)
-    return h, jac[:, 2:], jac[:, :2]
-
-
 # --------------------------------------------------------------------------------------------------------------
 # Stage 3, fixed-wing mode: x = (p_n, p_e, V_g, chi, w_n, w_e, dev_a, dev_b, dev_c)
 # --------------------------------------------------------------------------------------------------------------
-#: Number of stage-3 fixed-wing states.
-N_STAGE3_FW = 9
-#: Index of the first heading-deviation coefficient in the stage-3 fixed-wing state.
-I_DEVIATION = 6
 
 
 @njit(cache=True)
@@ -320,7 +167,7 @@ def corrected_heading(x, yaw2_rad):
 
 @njit(cache=True)
 def stage3_fw_f(x, u, gravity_m_s2):
-    """Navigation kinematics with the coordinated-turn course model (eq 26-29 corrected, T12/T13).
+    """Navigation kinematics with the coordinated-turn course model (eq 26-29 corrected).
 
     The heading is the stage-2 heading corrected by the deviation states (:func:`corrected_heading`); with zero
     initial and process variance for them it stays the stage-2 heading and this is the paper's 6-state filter.
@@ -371,7 +218,7 @@ def stage3_fw_rates(vg, chi, wn, we, va, psi_dot, cps, sps, turn_m_s2):
 
 @njit(cache=True)
 def stage3_fw_jacobians(x, u, gravity_m_s2, a=None, g=None):
-    """Jacobians of :func:`stage3_fw_f`: df/dx (9, 9) (eq 30 corrected, T14, plus the deviation columns) and the
+    """Jacobians of :func:`stage3_fw_f`: df/dx (9, 9) (eq 30 corrected, plus the deviation columns) and the
     input-noise Jacobian df/d(V_a, psi_2) (9, 2) for the airspeed and stage-2 heading errors; written into ``a``
     and ``g`` when given (allocated when None)."""
     if a is None:
@@ -409,65 +256,6 @@ def stage3_fw_jacobians(x, u, gravity_m_s2, a=None, g=None):
     g[2, 1] = dvg_dpsi * dpsi_dyaw2
     g[3, 1] = dchi_dpsi * dpsi_dyaw2
     return a, g
-
-
-@njit(cache=True)
-def stage3_fw_h_wind(x, air_speed_h_m_s, yaw_rad):
-    """Wind-triangle pseudo-measurement residual model (eq 31/32), z = (0, 0).
-
-    Parameters
-    ----------
-    x : ndarray, shape (9,)
-        Stage-3 fixed-wing state.
-    air_speed_h_m_s : float
-        Horizontal air-relative speed V_ah [m/s].
-    yaw_rad : float
-        Stage-2 heading psi_2 [rad] (the model uses the corrected heading psi).
-
-    Returns
-    -------
-    h : ndarray, shape (2,)
-        (V_ah c_psi + w_n - V_g c_chi, V_ah s_psi + w_e - V_g s_chi) [m/s].
-    c : ndarray, shape (2, 9)
-        dh/dx (eq 33 corrected, T15, plus the deviation columns).
-    """
-    vg, chi = x[2], x[3]
-    psi, _, dpsi_ddev = corrected_heading(x, yaw_rad)
-    cch, sch = np.cos(chi), np.sin(chi)
-    cps, sps = np.cos(psi), np.sin(psi)
-    h = np.array((air_speed_h_m_s * cps + x[4] - vg * cch, air_speed_h_m_s * sps + x[5] - vg * sch))
-    c = np.zeros((2, N_STAGE3_FW))
-    c[0, 2] = -cch
-    c[0, 3] = vg * sch
-    c[0, 4] = 1.0
-    c[1, 2] = -sch
-    c[1, 3] = -vg * cch
-    c[1, 5] = 1.0
-    for j in range(3):
-        c[0, I_DEVIATION + j] = -air_speed_h_m_s * sps * dpsi_ddev[j]
-        c[1, I_DEVIATION + j] = air_speed_h_m_s * cps * dpsi_ddev[j]
-    return h, c
-
-
-@njit(cache=True)
-def stage3_fw_wind_input_jacobian(x, air_speed_h_m_s, yaw_rad):
-    """d h_wind / d(V_ah, psi_2), shape (2, 2): maps airspeed and heading variances into the pseudo R."""
-    psi, dpsi_dyaw2, _ = corrected_heading(x, yaw_rad)
-    cps, sps = np.cos(psi), np.sin(psi)
-    return np.array(((cps, -air_speed_h_m_s * sps * dpsi_dyaw2), (sps, air_speed_h_m_s * cps * dpsi_dyaw2)))
-
-
-@njit(cache=True)
-def stage3_fw_h_gps_velocity(x):
-    """GPS NED horizontal velocity model (v_n, v_e) = V_g (c_chi, s_chi) and its Jacobian (2, 9)."""
-    vg, chi = x[2], x[3]
-    cch, sch = np.cos(chi), np.sin(chi)
-    c = np.zeros((2, N_STAGE3_FW))
-    c[0, 2] = cch
-    c[0, 3] = -vg * sch
-    c[1, 2] = sch
-    c[1, 3] = vg * cch
-    return np.array((vg * cch, vg * sch)), c
 
 
 # --------------------------------------------------------------------------------------------------------------
