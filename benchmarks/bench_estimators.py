@@ -9,8 +9,9 @@
    paper mission, extended at rest on the ground past its 14.4 minutes).
 4. Wall time of ``solarnav replay`` of that flight with all estimators (process start, ULog read, Parquet write).
 5. The full-state direct model stepped through FilterPy's ``ExtendedKalmanFilter`` (same compiled model functions,
-   same measurement stream; FilterPy's ``predict`` at every IMU sample, as FilterPy is used, and on our 100 Hz
-   covariance schedule), microseconds per IMU sample, and the speed-up of our kernel, measured in the same run.
+   same measurement stream; FilterPy's ``predict`` at every IMU sample, as FilterPy is used, and on our
+   covariance schedule: 100 Hz and before every update), microseconds per IMU sample, and the speed-up of our
+   kernel, measured in the same run.
 
 Run: ``.venv/bin/python benchmarks/bench_estimators.py [--minutes 60] [--filterpy-seconds 120] [--repeat 2]
 [--skip-compile]`` (not part of the test suite; FilterPy is a dev dependency).
@@ -34,7 +35,9 @@ import pandas as pd
 from estimators.api import ESTIMATORS, estimator_function, run_estimators
 from estimators.config import EstimatorConfig
 from estimators.core import full_state, linalg
-from estimators.direct import kernel as direct_kernel
+from estimators.core.schedule import COVARIANCE, EVENT, PROPAGATE, build_schedule
+from estimators.direct import measurements, model
+from estimators.direct import run as direct_run
 from estimators.evaluation import PAPER_TABLE_2, QUANTITIES, config_for_simulation, rms_errors
 from estimators.inputs import build, records
 from ingest.ulog_reader import load_flight_log
@@ -144,8 +147,10 @@ def filterpy_direct_us_per_sample(log, seconds: float, *, covariance_every_sampl
     inputs; returns (filterpy, ours) microseconds per IMU sample.
 
     FilterPy gets the same compiled model functions (RK4 state step, Jacobian, process noise, measurement
-    models) and the same measurement stream; its ``predict`` (covariance) runs either at every IMU sample (how
-    FilterPy is used: one predict per step) or on our fixed covariance schedule.
+    models), the same measurement stream and the filters' schedule (:func:`estimators.core.schedule.build_schedule`);
+    its ``predict`` (covariance) runs either after every propagation step (how FilterPy is used: one predict per
+    step) or as our kernel's (every covariance interval and before every update; docs/estimators.md, 'Scheduling
+    rule').
     """
     from filterpy.kalman import ExtendedKalmanFilter
 
@@ -161,48 +166,53 @@ def filterpy_direct_us_per_sample(log, seconds: float, *, covariance_every_sampl
     ev = records.MeasurementEvents(ev.time_s[keep_ev], ev.kind[keep_ev], ev.imu_index[keep_ev], ev.values[keep_ev],
                                   ev.variances[keep_ev])
     short = records.ReplayInputs(**{**inputs.__dict__, "imu": imu, "events": ev})
-    k = direct_kernel.kernel_inputs(short, config)
-    n = len(k.x0)
-    direct_kernel.run(log, short, config)
-    ours = min(direct_kernel.run(log, short, config).report.timings_s["kernel"] for _ in range(3)) / len(imu.time_s) * 1e6
+    settings = direct_run.kernel_settings(short, config)
+    n = len(settings.x0)
+    direct_run.run(log, short, config)
+    ours = min(direct_run.run(log, short, config).report.timings_s["kernel"] for _ in range(3)) / len(imu.time_s) * 1e6
 
     ekf = ExtendedKalmanFilter(dim_x=n, dim_z=1)
-    ekf.x = k.x0.reshape(n, 1).copy()
-    ekf.P = k.P0.copy()
+    ekf.x = settings.x0.reshape(n, 1).copy()
+    ekf.P = settings.P0.copy()
     ekf.predict_x = lambda u=0: None  # the state is integrated below (RK4, same model)
-    R, S, W = np.empty((3, 3)), np.empty((3, 3)), np.empty((3, 3))
+    R_nb, S_euler, W_euler = np.empty((3, 3)), np.empty((3, 3)), np.empty((3, 3))
     k1, k2, k3, k4, xt = (np.empty(n) for _ in range(5))
     A, F, Qd, H = np.zeros((n, n)), np.empty((n, n)), np.zeros((n, n)), np.empty(n)
-
-    g, cov_dt, field = k.params[full_state.P_G], k.params[full_state.P_COV_DT], k.params[full_state.P_FIELD:full_state.P_FIELD + 3]
-    acc_dt, acc_gyro, j = 0.0, np.zeros(3), 0
+    g, field, layout = settings.gravity_m_s2, settings.field_ned, settings.layout
+    # the shared scheduling rule (a covariance interval of 0: a predict after every propagation step)
+    op, op_dt, op_index = build_schedule(imu.time_s, ev.time_s, ev.kind, ev.imu_index,
+                                         0.0 if covariance_every_sample else settings.covariance_dt_s, math.inf)
+    acc_dt, acc_gyro, x_cov = 0.0, np.zeros(3), settings.x0.copy()
     start = time.perf_counter()
-    for row in range(1, len(imu.time_s)):
-        dt = imu.time_s[row] - imu.time_s[row - 1]
-        gyro, accel = imu.gyro_rad_s[row], imu.accel_m_s2[row]
-        x = ekf.x.reshape(n)
-        if acc_dt == 0.0:
-            x_cov = x.copy()
-        direct_kernel.propagate_state(x, gyro, accel, dt, g, k.layout, R, S, W, k1, k2, k3, k4, xt)
-        ekf.x = x.reshape(n, 1)
-        acc_dt += dt
-        acc_gyro += gyro * dt
-        if acc_dt >= cov_dt or covariance_every_sample:
-            direct_kernel.jacobian(x_cov, acc_gyro / acc_dt, g, k.layout, R, S, W, A)
+    for s in range(len(op)):
+        if op[s] == PROPAGATE:
+            row, dt = op_index[s], op_dt[s]
+            gyro, accel = imu.gyro_rad_s[row], imu.accel_m_s2[row]
+            x = ekf.x.reshape(n)
+            if acc_dt == 0.0:
+                x_cov = x.copy()
+            model.propagate_state(x, gyro, accel, dt, g, layout, R_nb, S_euler, W_euler, k1, k2, k3, k4, xt)
+            ekf.x = x.reshape(n, 1)
+            acc_dt += dt
+            acc_gyro += gyro * dt
+        elif op[s] == COVARIANCE and acc_dt > 0.0:
+            model.jacobian(x_cov, acc_gyro / acc_dt, g, layout, R_nb, S_euler, W_euler, A)
             linalg.transition_matrix(A, acc_dt, F)
-            direct_kernel.process_noise(x_cov, k.params[full_state.P_NG2], k.params[full_state.P_NA2], k.rw_var, acc_dt, R, S, W, Qd)
+            model.process_noise(x_cov, settings.gyro_psd, settings.accel_psd, settings.walk_psd, acc_dt, R_nb, S_euler,
+                                W_euler, Qd)
             ekf.F, ekf.Q = F, Qd
             ekf.predict()
             acc_dt, acc_gyro = 0.0, np.zeros(3)
-        while j < len(ev.time_s) and ev.imu_index[j] <= row:
+        elif op[s] == EVENT:
+            j = op_index[s]
             kind, values = ev.kind[j], ev.values[j]
             c0, c1 = full_state.component_range(kind, values, False, 3.0)
             for c in range(c0, c1):  # (no sun events with the default magnetometer heading)
-                h = direct_kernel.measurement(ekf.x.reshape(n), kind, c, values, field, k.layout, R, S, W, H)
+                h = measurements.measurement(ekf.x.reshape(n), kind, c, values, field, layout, R_nb, S_euler, W_euler,
+                                             H)
                 z, r_var = full_state.measured_value(kind, c, values, ev.variances[j])
                 ekf.update(np.array([[z]]), HJacobian=lambda _x, H=H: H.reshape(1, n),
                            Hx=lambda _x, h=h: np.array([[h]]), R=np.array([[r_var]]))
-            j += 1
     filterpy = (time.perf_counter() - start) / len(imu.time_s) * 1e6
     schedule = "predict at every IMU sample" if covariance_every_sample else "our covariance schedule"
     print(f"FilterPy ExtendedKalmanFilter, full-state direct model ({n} states, {seconds:g} s, {schedule}): "

@@ -34,9 +34,9 @@ from ingest.flightlog import FlightLog
 #: Registry: estimator name -> ``"module:function"`` with the signature ``(flight_log, inputs, config) ->
 #: EstimatorRun``. Add an estimator with one line.
 ESTIMATORS: dict[str, str] = {
-    "three_stage": "estimators.three_stage.kernel:run",
-    "full_state_direct": "estimators.direct.kernel:run",
-    "full_state_indirect": "estimators.indirect.kernel:run",
+    "three_stage": "estimators.three_stage.run:run",
+    "full_state_direct": "estimators.direct.run:run",
+    "full_state_indirect": "estimators.indirect.run:run",
 }
 #: Default estimator selection (all three, paper order).
 DEFAULT_ESTIMATORS = ("three_stage", "full_state_direct", "full_state_indirect")

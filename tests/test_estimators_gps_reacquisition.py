@@ -1,4 +1,5 @@
-"""GPS re-acquisition (math note 2.3) in the three filters: a GPS position component (each one on its own) or a
+"""GPS re-acquisition (docs/estimators.md, 'GPS re-acquisition') in the three filters: a GPS position component (each
+one on its own) or a
 velocity component rejected continuously for T_rej, or GPS back after an outage longer than T_out, resets the
 position AND the velocity states to the GPS (variances to R, cross-covariances zeroed) and counts a reset event.
 
@@ -20,19 +21,18 @@ import pytest
 from estimators import environment
 from estimators.config import EstimatorConfig
 from estimators.core import linalg, reacquisition
-from estimators.direct import kernel as direct_kernel
-from estimators.direct.reference import GpsMonitor
+from estimators.direct import run as direct_run
 from estimators.evaluation import config_for_simulation, rms_errors
-from estimators.indirect import kernel as fsi
+from estimators.indirect import run as fsi
 from estimators.inputs import build
 from estimators.inputs.records import GPS_POS, GPS_VEL
-from estimators.three_stage import kernel as ts
+from estimators.three_stage import run as ts
 from ingest.flightlog import FlightLog
 from ingest.ulog_reader import load_flight_log
 from tests.conftest import SAMPLE_LOGS_DIR
 from tests.estimators_synthetic import ALT0, LAT0, LON0, synthetic_flight
 
-RUNNERS = {"three_stage": ts.run, "full_state_direct": direct_kernel.run, "full_state_indirect": fsi.run}
+RUNNERS = {"three_stage": ts.run, "full_state_direct": direct_run.run, "full_state_indirect": fsi.run}
 #: Per-axis GPS position sigma of the synthetic flight [m].
 GPS_SIGMA_M = 0.5
 #: "Within a few GPS sigma": the horizontal position RMS bar after recovery [m].
@@ -80,6 +80,42 @@ def _rms(values) -> float:
 
 # ----------------------------------------------------------------------------------------------------------------
 # the rule
+
+
+class GpsMonitor:
+    """Plain-Python statement of the rule (the twin of :func:`estimators.core.reacquisition.gps_reset_due`): a reset
+    of position and velocity when a GPS position or velocity component has been rejected continuously for
+    ``reject_s``, or when GPS returns after an outage longer than ``outage_s``. The kind whose event triggers is
+    reset at once, the other kind at its next event; the first position event resets the position only."""
+
+    def __init__(self, reject_s, outage_s):
+        self.reject_s, self.outage_s = reject_s, outage_s
+        self.seen = {GPS_POS: -math.inf, GPS_VEL: -math.inf}
+        self.pending = {GPS_POS: False, GPS_VEL: False}
+        self.streak_start = {}  # (kind, channel) -> start of its current rejection streak
+
+    def record(self, kind, comp, t, accepted):
+        channel = (kind, comp if kind == GPS_POS or comp < 3 else comp - 3)
+        if accepted:
+            self.streak_start.pop(channel, None)
+        else:
+            self.streak_start.setdefault(channel, t)
+
+    def reset_due(self, kind, t):
+        """(reset this kind's states now, count a new reset event)."""
+        other = GPS_VEL if kind == GPS_POS else GPS_POS
+        last, self.seen[kind] = self.seen[kind], t
+        if kind == GPS_POS and last == -math.inf:
+            return True, False
+        if self.pending[kind]:
+            self.pending[kind] = False
+            return True, False
+        outage = last > -math.inf and t - last > self.outage_s
+        if not (outage or any(t - start >= self.reject_s for start in self.streak_start.values())):
+            return False, False
+        self.streak_start.clear()
+        self.pending[other] = True
+        return True, True
 
 
 def test_rule_on_event_sequences():
@@ -206,19 +242,4 @@ def test_outage_longer_than_t_out_resets_at_the_return(name):
     t, err = _horizontal_error(long, run.states)
     assert _rms(err[t >= 25.0 + 1.5 * T_OUT_S + 1.0]) < RECOVERED_RMS_M
 
-
-@pytest.mark.parametrize("estimator", ["full_state_direct", "full_state_indirect"])
-def test_numba_kernel_equals_numpy_twin_through_resets(estimator):
-    """10 s with the GPS north stepping 20 m at 2 s: the reset (at about 7 s) is the same in the kernel and the
-    NumPy twin."""
-    log = _north_step(synthetic_flight(10.0, seed=3), 2.0, 20.0)
-    config = EstimatorConfig()
-    inputs = build.build_replay_inputs(log, config)
-    fast = RUNNERS[estimator](log, inputs, config, backend="numba")
-    slow = RUNNERS[estimator](log, inputs, config, backend="numpy")
-    assert fast.report.gps_resets == slow.report.gps_resets == 1
-    numeric = [c for c in fast.states.columns if c != "time_s"]
-    a, b = fast.states[numeric].to_numpy(), slow.states[numeric].to_numpy()
-    assert np.array_equal(np.isnan(a), np.isnan(b))
-    assert np.nanmax(np.abs(a - b)) < 1e-9
-    assert (fast.diagnostics["accepted"].to_numpy() == slow.diagnostics["accepted"].to_numpy()).all()
+# the kernels against their uncompiled twins through a reset: tests/test_direct.py, tests/test_indirect.py

@@ -30,13 +30,14 @@ from calib.calibration import calibrate
 from calib.segments import user_segment
 from estimators.api import DEFAULT_ESTIMATORS, estimator_function, run_estimators
 from estimators.config import EstimatorConfig, config_from_calibration
-from estimators.direct import kernel as direct_kernel
+from estimators.direct import measurements as direct_measurements
 from estimators.environment import local_gravity_m_s2
 from estimators.evaluation import PAPER_TABLE_2, config_for_simulation, rms_errors, truth_at
+from estimators.indirect import measurements as indirect_measurements
 from estimators.indirect import model as m
 from estimators.inputs import build, records
 from estimators.sun import measurement as sun_measurement_model
-from estimators.three_stage import model as three_stage_models
+from estimators.three_stage import measurements as three_stage_models
 from ingest import attach_sun, load_sun_device, with_sun
 from ingest.frames import euler_to_matrix, euler_to_quat, quat_to_matrix
 from ingest.sun_device import SunDevice
@@ -248,12 +249,12 @@ def test_direct_filter_sun_update():
         values[3:6] = _sun(rng)
 
         def h_of(xx, values=values):
-            return np.array([direct_kernel.measurement(xx, records.SUN, c, values, np.zeros(3), layout, *scratch(), np.empty(n))
+            return np.array([direct_measurements.measurement(xx, records.SUN, c, values, np.zeros(3), layout, *scratch(), np.empty(n))
                              for c in range(3)])
 
         H3 = np.empty((3, n))
         for c in range(3):
-            direct_kernel.measurement(x, records.SUN, c, values, np.zeros(3), layout, *scratch(), H3[c])
+            direct_measurements.measurement(x, records.SUN, c, values, np.zeros(3), layout, *scratch(), H3[c])
         r_nb = euler_to_matrix(roll, pitch, yaw)
         np.testing.assert_allclose(h_of(x), r_nb.T @ values[3:6], atol=1e-12)
         np.testing.assert_allclose(H3[:, 6:9], sun_measurement_model.sun_jacobian_euler(r_nb, values[3:6]), atol=1e-12)
@@ -274,11 +275,11 @@ def test_indirect_filter_sun_update():
 
         def h_at(xx, sun=sun):
             H = np.empty(m.NE)
-            return np.array([m.h_body_vector(xx, sun, c, False, H) for c in range(3)])
+            return np.array([indirect_measurements.h_body_vector(xx, sun, c, False, H) for c in range(3)])
 
         H3 = np.empty((3, m.NE))
         for c in range(3):
-            m.h_body_vector(x, sun, c, False, H3[c])
+            indirect_measurements.h_body_vector(x, sun, c, False, H3[c])
         r_nb = quat_to_matrix(x[m.X_Q:m.X_Q + 4])
         th = slice(m.E_TH, m.E_TH + 3)
         np.testing.assert_allclose(H3[:, th], sun_measurement_model.sun_jacobian_error_angle(r_nb, sun), atol=1e-12)
