@@ -249,8 +249,8 @@ def test_direct_filter_sun_update():
         values[3:6] = _sun(rng)
 
         def h_of(xx, values=values):
-            return np.array([direct_measurements.measurement(xx, records.SUN, c, values, np.zeros(3), layout, *scratch(), np.empty(n))
-                             for c in range(3)])
+            return np.array([direct_measurements.measurement(xx, records.SUN, c, values, np.zeros(3), layout,
+                                                             *scratch(), np.empty(n)) for c in range(3)])
 
         H3 = np.empty((3, n))
         for c in range(3):

@@ -174,7 +174,8 @@ def test_clouds_low_k_epochs_are_rejected():
     solution = sun_solver.solve_sun_adaptive(currents, DEVICE, NOISE_A, up)
     assert solution.k_min_a == pytest.approx(0.2 * K_A, rel=0.02)
     assert not solution.valid[cloudy].any()
-    assert (solution.status[cloudy] == solver_kernel.STATUS_LOW_K).mean() > 0.8  # 0.88; the rest fail the priors earlier
+    # 0.88; the rest fail the priors earlier
+    assert (solution.status[cloudy] == solver_kernel.STATUS_LOW_K).mean() > 0.8
     assert solution.valid[:1000].mean() > 0.99
     fixed = sun_solver.solve_sun_adaptive(currents, DEVICE, NOISE_A, up, sun_solver.SunSolverConfig(k_min_a=0.005))
     assert fixed.k_min_a == 0.005
@@ -338,6 +339,6 @@ def test_measurement_is_c_bn_s_n_and_tangent_basis_is_orthonormal():
     basis = sun_measurement_model.sun_tangent_basis(h)
     np.testing.assert_allclose(basis.T @ basis, np.eye(2), atol=1e-12)
     np.testing.assert_allclose(basis.T @ h, 0.0, atol=1e-12)
-    np.testing.assert_allclose(sun_measurement_model.sun_tangent_basis(np.array([1.0, 0.0, 0.0])).T @ [1.0, 0.0, 0.0], 0.0,
-                               atol=1e-15)
+    along_x = np.array([1.0, 0.0, 0.0])
+    np.testing.assert_allclose(sun_measurement_model.sun_tangent_basis(along_x).T @ along_x, 0.0, atol=1e-15)
     np.testing.assert_allclose(sun_measurement_model.sun_measurement_noise(0.01), 1e-4 * np.eye(3))

@@ -24,17 +24,6 @@ from estimators.inputs.records import (
     ReplayInputs,
 )
 
-# parameter array slots (0 .. N_SHARED_PARAMS - 1 are shared with the indirect filter, see shared_params)
-P_G = 0  # gravity [m/s^2]
-P_NG2 = 1  # gyro noise density^2 [(rad/s)^2/Hz]
-P_NA2 = 2  # accel noise density^2 [(m/s^2)^2/Hz]
-P_COV_DT = 3  # covariance propagation interval [s]
-P_FIELD = 4  # 4, 5, 6: unit earth field NED
-P_GPS_REJECT_S = 7  # a GPS component rejected this long -> position/velocity reset [s]
-P_GPS_OUTAGE_S = 8  # GPS back after an outage this long -> position/velocity reset [s]
-P_VMIN = 9  # minimum ground speed for course updates [m/s]
-P_PAPER_VEL = 10  # 1: GPS velocity as ground speed and course
-N_SHARED_PARAMS = 11
 #: Variance floor of every state (keeps P positive definite).
 MIN_VARIANCE = 1e-12
 #: Smallest eigenvalue kept by a covariance repair.
@@ -80,22 +69,6 @@ def scalar_innovation(kind, comp, values, variances, h):
     if kind == GPS_VEL and comp == 4:
         nu = rotations.wrap_pi(nu)
     return nu, r_var
-
-
-def shared_params(inputs: ReplayInputs, config: EstimatorConfig, n_params: int) -> np.ndarray:
-    """The kernel parameter array of a full-state filter (length ``n_params``) with the slots both filters share
-    (``P_G`` .. ``P_PAPER_VEL``, the first :data:`N_SHARED_PARAMS`) filled; the rest zero."""
-    params = np.zeros(n_params)
-    params[P_G] = inputs.gravity_m_s2
-    params[P_NG2] = config.noise.gyro_noise_rad_s_sqrt_hz ** 2
-    params[P_NA2] = config.noise.accel_noise_m_s2_sqrt_hz ** 2
-    params[P_COV_DT] = 1.0 / config.timing.covariance_rate_hz
-    params[P_FIELD:P_FIELD + 3] = inputs.mag_field_ned
-    params[P_GPS_REJECT_S] = config.timing.gps_reset_after_s
-    params[P_GPS_OUTAGE_S] = config.timing.gps_outage_reset_s
-    params[P_VMIN] = config.timing.min_ground_speed_m_s
-    params[P_PAPER_VEL] = 1.0 if config.gps_velocity_mode == "paper" else 0.0
-    return params
 
 
 def shared_settings(inputs: ReplayInputs, config: EstimatorConfig) -> dict:

@@ -17,31 +17,15 @@ What this module decides, once, for every estimator:
   without that parameter the logged ``sample_time_s``, else the PX4 default delay
   (:func:`gps_measurement_time_s`). Output epochs
   (``OUTPUT``) are events too, on the grid ``k / rate_hz`` of the log clock.
-* **Sensor plan**: which sensors are usable, which are skipped and why, and the degradations of docs/estimators.md,
-'Sensor plan'
-  (no airspeed -> no wind states and no airspeed; multicopter -> no fixed-wing pseudo-measurements; no GPS ->
-  attitude and height only, with a zero-velocity pseudo-measurement keeping the tilt observable; no magnetometer
-  -> yaw dead-reckoned).
-* **Origin** (first good GPS fix, docs/estimators.md, 'Frames and attitude identities'), the earth magnetic field there
-(World Magnetic Model at the
-  log's date), the barometer offset to GPS height and the **initial alignment** from the first still seconds
-  (docs/estimators.md, 'Initial alignment').
+* **Sensor plan**: which sensors are usable, which are skipped and why, and the degradations of
+  docs/estimators.md, 'Sensor plan' (no airspeed -> no wind states and no airspeed; multicopter -> no fixed-wing
+  pseudo-measurements; no GPS -> attitude and height only, with a zero-velocity pseudo-measurement keeping the
+  tilt observable; no magnetometer -> yaw dead-reckoned).
+* **Origin** (first good GPS fix, docs/estimators.md, 'Frames and attitude identities'), the earth magnetic
+  field there (World Magnetic Model at the log's date), the barometer offset to GPS height and the **initial
+  alignment** from the first still seconds (docs/estimators.md, 'Initial alignment').
 
-Event values per kind (unused slots are 0; variances are per component):
-
-=============  ============================================  ============================================
-kind           values                                         variances
-=============  ============================================  ============================================
-BARO           height above the origin [m]                    sigma_baro^2
-AIRSPEED       true airspeed [m/s]                            sigma_tas^2
-SIDESLIP       0 (body-y air velocity pseudo) [m/s]           sigma_beta^2
-GPS_POS        NED position of the antenna [m]                (eph*scale)^2 x2, epv^2 (floored)
-GPS_VEL        NED velocity [m/s]                             speed accuracy^2 x3 (floored)
-MAG            field in body FRD / reference strength [-]     sigma_mag^2 x3
-SUN            sun unit vector body FRD [-], then NED [-]     sigma_sun^2 (per tangent axis)
-ZERO_VELOCITY  0, 0, 0 NED velocity pseudo [m/s]             sigma_zv^2 x3
-OUTPUT         (none)                                         (none)
-=============  ============================================  ============================================
+Event values and variances per kind: :mod:`estimators.inputs.records`.
 """
 
 
