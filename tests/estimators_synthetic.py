@@ -113,3 +113,20 @@ def synthetic_flight(duration_s: float = 10.0, *, imu_hz: float = 250.0, airspee
     meta = LogMetadata(source="synthetic.ulg", vehicle_type=mav_type, parameters={"EKF2_GPS_DELAY": 0.0},
                        utc_offset_s=1.56e9)
     return FlightLog(streams=streams, meta=meta)
+
+
+def assert_same_run(fast, slow_states: pd.DataFrame, slow_diag: pd.DataFrame, slow_final: dict, n_outputs: int,
+                    tolerance: float = 1e-9) -> None:
+    """A compiled run (an ``EstimatorRun``) equals the same kernel source run uncompiled: states, diagnostics and
+    final state within ``tolerance`` (absolute), the same NaN pattern and gate decisions, ``n_outputs`` rows."""
+    numeric = [c for c in fast.states.columns if c != "time_s"]
+    assert len(fast.states) == len(slow_states) == n_outputs
+    a, b = fast.states[numeric].to_numpy(), slow_states[numeric].to_numpy()
+    assert np.array_equal(np.isnan(a), np.isnan(b))
+    assert np.nanmax(np.abs(a - b)) < tolerance
+    assert len(fast.diagnostics) == len(slow_diag) > 0
+    for column in ("time_s", "innovation", "innovation_var", "nis"):
+        assert np.nanmax(np.abs(fast.diagnostics[column].to_numpy() - slow_diag[column].to_numpy())) < tolerance
+    assert (fast.diagnostics["accepted"].to_numpy() == slow_diag["accepted"].to_numpy()).all()
+    final = fast.report.details["final_state"]
+    assert max(abs(final[k] - slow_final[k]) for k in final) < tolerance

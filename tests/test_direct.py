@@ -27,7 +27,7 @@ from estimators.inputs import build, records
 from estimators.inputs.records import AIRSPEED, BARO, GPS_POS, GPS_VEL, MAG, OUTPUT, SIDESLIP, SUN, ZERO_VELOCITY
 from ingest.flightlog import FlightLog
 from ingest.frames import euler_to_matrix
-from tests.estimators_synthetic import synthetic_flight
+from tests.estimators_synthetic import assert_same_run, synthetic_flight
 
 TESTS_DIR = Path(__file__).resolve().parent
 REPO_DIR = TESTS_DIR.parent
@@ -457,17 +457,7 @@ def test_numba_kernel_equals_uncompiled_python(uncompiled_runs, case):
     fast = direct_run.run(log, inputs, config)
     slow_states, slow_diag, slow_final, slow_gps_resets = uncompiled_runs[case]
     assert fast.report.gps_resets == slow_gps_resets == (1 if case == "gps_reset" else 0)
-    numeric = [c for c in fast.states.columns if c != "time_s"]
-    assert len(fast.states) == len(slow_states) == inputs.output_time_s.size
-    a, b = fast.states[numeric].to_numpy(), slow_states[numeric].to_numpy()
-    assert np.array_equal(np.isnan(a), np.isnan(b))
-    assert np.nanmax(np.abs(a - b)) < 1e-9
-    assert len(fast.diagnostics) == len(slow_diag) > 0
-    for column in ("time_s", "innovation", "innovation_var", "nis"):
-        assert np.nanmax(np.abs(fast.diagnostics[column].to_numpy() - slow_diag[column].to_numpy())) < 1e-9
-    assert (fast.diagnostics["accepted"].to_numpy() == slow_diag["accepted"].to_numpy()).all()
-    final = fast.report.details["final_state"]
-    assert max(abs(final[k] - slow_final[k]) for k in final) < 1e-9
+    assert_same_run(fast, slow_states, slow_diag, slow_final, inputs.output_time_s.size)
 
 
 def test_kernel_executes_the_shared_schedule(short_flight):

@@ -41,7 +41,7 @@ from ingest.flightlog import FlightLog
 from ingest.frames import euler_to_matrix, quat_to_matrix
 from ingest.ulog_reader import load_flight_log
 from tests.conftest import SAMPLE_LOGS_DIR
-from tests.estimators_synthetic import synthetic_flight
+from tests.estimators_synthetic import assert_same_run, synthetic_flight
 
 CONFIG = EstimatorConfig()
 TESTS_DIR = Path(__file__).resolve().parent
@@ -225,17 +225,7 @@ def test_numba_kernel_equals_uncompiled_python(tmp_path, case):
     inputs = build.build_replay_inputs(log, config)
     fast = fsi.run(log, inputs, config, inject=inject)
     assert fast.report.gps_resets == slow_gps_resets == (1 if case == "gps_step" else 0)
-    numeric = [c for c in fast.states.columns if c != "time_s"]
-    assert len(fast.states) == len(slow_states) == inputs.output_time_s.size
-    a, b = fast.states[numeric].to_numpy(), slow_states[numeric].to_numpy()
-    assert np.array_equal(np.isnan(a), np.isnan(b))
-    assert np.nanmax(np.abs(a - b)) < 1e-9
-    assert len(fast.diagnostics) == len(slow_diag) > 0
-    for column in ("time_s", "innovation", "innovation_var", "nis"):
-        assert np.nanmax(np.abs(fast.diagnostics[column].to_numpy() - slow_diag[column].to_numpy())) < 1e-9
-    assert (fast.diagnostics["accepted"].to_numpy() == slow_diag["accepted"].to_numpy()).all()
-    final = fast.report.details["final_state"]
-    assert max(abs(final[k] - slow_final[k]) for k in final) < 1e-9
+    assert_same_run(fast, slow_states, slow_diag, slow_final, inputs.output_time_s.size)
 
 
 def test_kernel_executes_the_schedule():
