@@ -12,7 +12,7 @@ from streamlit.testing.v1 import AppTest
 
 from app import samples, session
 from app.workspace import Workspace
-from tests.conftest import REAL_LOGS_DIR, REPO_DIR
+from tests.conftest import REPO_DIR
 
 ENTRYPOINT = REPO_DIR / "app" / "dashboard.py"
 #: The short bundled scenario (2 min, sun device with a failing cell): fast enough for the heavier pages.
@@ -64,7 +64,7 @@ def test_home_opens_on_the_bundled_mission_and_lists_the_workspace(open_page, wo
     assert len(table) >= 1
 
 
-def test_home_upload_rejects_a_bad_file_and_stores_a_good_one(open_page, workspace_dir):
+def test_home_upload_rejects_a_bad_file_and_stores_a_good_one(open_page, workspace_dir, real_logs_dir):
     at = open_page()
     at.file_uploader(key="upload_ulog").set_value(("../../notes.ulg", b"not a ulog at all", "application/octet"))
     at.button[0].click()  # the form's submit button
@@ -74,7 +74,7 @@ def test_home_upload_rejects_a_bad_file_and_stores_a_good_one(open_page, workspa
     assert at.dataframe  # the page goes on: the workspace table is still shown
     assert all(entry.display_name != "notes.ulg" for entry in Workspace(workspace_dir).list_logs())
 
-    small = REAL_LOGS_DIR / "sample_log_small.ulg"
+    small = real_logs_dir / "sample_log_small.ulg"
     at.file_uploader(key="upload_ulog").set_value(("../evil/<small>.ulg", small.read_bytes(), "application/octet"))
     at.button[0].click()
     at.run()
