@@ -12,6 +12,7 @@ Every function takes the workspace root as a string so the cache key names the w
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 import tempfile
@@ -29,8 +30,9 @@ from app.workspace import LogEntry, Workspace
 from calib.bias import local_gravity
 from calib.calibration import Calibration, FirSettings, allan_curves, calibrate, sensor_samples, with_tau
 from calib.export import calibration_to_dict, read_calibration
+from calib.filter_figures import calibration_figures
 from calib.fir import design_fir, edge_slice, zero_phase_lowpass
-from calib.px4_params import DEFAULT_PREDICT_PERIOD_S, px4_parameters, write_px4_params
+from calib.parameter_export import DEFAULT_PREDICT_PERIOD_S, export_figures, px4_parameters, write_px4_params
 from calib.segments import (
     ACCEL_COLUMNS,
     GYRO_COLUMNS,
@@ -41,9 +43,10 @@ from calib.segments import (
     user_segment,
 )
 from calib.tau import TauSelection, choose_tau, user_tau
-from estimators.calibration_replay import tau_replay
+from estimators.calibration_replay import inflight_bias, tau_replay
 from estimators.environment import geodetic_to_ned
 from estimators.sun.prediction import sun_vector_table
+from estimators.tuning import tune_calibration
 from ingest import FlightLog
 
 #: Bytes per MB in Streamlit's ``server.maxUploadSize``.
@@ -243,12 +246,26 @@ def calibration_files(root: str, sha256: str, cal: Calibration) -> tuple[str, st
     """CALIB.json text and the PX4 ``.params`` text of a calibration (EKF2 period from the log's parameters)."""
     predict_us = stored_log(root, sha256).meta.parameters.get("EKF2_PREDICT_US")
     period_s = predict_us / 1e6 if predict_us else DEFAULT_PREDICT_PERIOD_S
+    imu_rate_hz = cal.sensors["gyroscope"].fir.fs_hz if "gyroscope" in cal.sensors else None
     with tempfile.TemporaryDirectory() as directory:
-        params_path = write_px4_params(px4_parameters(cal, period_s), Path(directory) / "calib.params",
+        params_path = write_px4_params(px4_parameters(export_figures(cal), period_s, imu_rate_hz),
+                                       Path(directory) / "calib.params",
                                        header=f"EKF2 noise parameters calibrated by solarnav from {cal.source}\n"
                                               f"EKF2 prediction period {period_s * 1e3:g} ms")
         params_text = params_path.read_text()
     return json.dumps(calibration_to_dict(cal), indent=2, allow_nan=False) + "\n", params_text
+
+
+@st.cache_resource(max_entries=4, show_spinner="Identifying the noise from the flight's innovations (a minute for "
+                                                "15 minutes of flight) ...")
+def tuned_calibration(root: str, sha256: str, _cal: Calibration, cal_digest: str) -> Calibration:
+    """``_cal`` with its in-flight bias, its filter figures and the noise identified per estimator
+    (:func:`estimators.tuning.tune_calibration`, as ``solarnav calibrate --tune``); cached by the log and the
+    digest of the calibration's CALIB.json text."""
+    del cal_digest  # the cache key of _cal
+    log = stored_log(root, sha256)
+    cal = _cal if _cal.inflight_bias is not None else dataclasses.replace(_cal, inflight_bias=inflight_bias(log, _cal))
+    return tune_calibration(log, dataclasses.replace(cal, figures=calibration_figures(cal)))
 
 
 # ---------------------------------------------------------------------------------------------------- estimators

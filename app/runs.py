@@ -74,7 +74,8 @@ def replay(log: FlightLog, settings: RunSettings, calibration: Calibration | Non
     settings : RunSettings
         Estimators, heading aid, output rate.
     calibration : Calibration, optional
-        Noise for R (:func:`estimators.config.config_from_calibration`); the default noise without one.
+        Noise for R (:func:`estimators.config.config_from_calibration`, the estimator's tuned figures when the
+        calibration has them); the default noise without one.
     progress : callable, optional
         ``progress(fraction, text)`` before each estimator and at the end.
 
@@ -85,11 +86,12 @@ def replay(log: FlightLog, settings: RunSettings, calibration: Calibration | Non
     report : dict
         Estimator name -> its report as a JSON-ready dict.
     """
-    config = EstimatorConfig() if calibration is None else config_from_calibration(calibration)
     states, diagnostics, report = [], [], {}
     for k, name in enumerate(settings.estimators):
         if progress is not None:
             progress(k / len(settings.estimators), f"Running {name} ({k + 1} of {len(settings.estimators)}) ...")
+        config = (EstimatorConfig() if calibration is None
+                  else config_from_calibration(calibration, estimator=name))
         result = run_estimators(log, estimators=(name,), config=config, heading=settings.heading,
                                 rate_hz=settings.rate_hz)
         states.append(result.states)

@@ -170,3 +170,26 @@ def allan_table(per_axis: Sequence, axes: Sequence[str], unit: str) -> pd.DataFr
                           "B at tau [s]": figs.bias_instability_tau_s, "floor reached": figs.floor_reached,
                           f"K [{unit} sqrt(Hz)/s]": figs.rate_random_walk}
                          for axis, figs in zip(axes, per_axis, strict=True)])
+
+
+def tuning_table(cal) -> pd.DataFrame:
+    """One row per estimator and identified figure: start, tuned value, unit, bounds."""
+    rows = [{"estimator": name, "figure": figure, "calibrated": start, "tuned": result.figures[figure].value,
+             "unit": result.figures[figure].unit, "bounds": f"{result.bounds[figure][0]:g} .. "
+                                                             f"{result.bounds[figure][1]:g}"}
+            for name, result in cal.tuning.items() for figure, start in result.start.items()]
+    return pd.DataFrame(rows)
+
+
+def tuning_nis_table(cal) -> pd.DataFrame:
+    """One row per estimator and channel: mean NIS before and after the identification, and the 95 % band."""
+    rows = []
+    for name, result in cal.tuning.items():
+        after = {c.channel: c for c in result.nis_after}
+        for before in result.nis_before:
+            if before.channel in after:
+                now = after[before.channel]
+                rows.append({"estimator": name, "channel": before.channel, "mean NIS calibrated": before.mean_nis,
+                             "mean NIS tuned": now.mean_nis, "95 % band": f"{now.band[0]:.3f} .. {now.band[1]:.3f}",
+                             "updates": now.n_updates})
+    return pd.DataFrame(rows)

@@ -11,5 +11,6 @@ Modules, in data-flow order (calib imports only ``ingest`` and third-party libra
 * :mod:`calib.tau`: eq 52's tau, user-set or chosen through an injected filter replay;
 * :mod:`calib.calibration`: :func:`~calib.calibration.calibrate`, the eq 51 R matrices;
 * :mod:`calib.tables`: Table 4 and eq 51 as DataFrames;
-* :mod:`calib.export`: CALIB.json (schema ``solarnav.calibration/1``); :mod:`calib.px4_params`: EKF2 .params.
+* :mod:`calib.export`: CALIB.json (schema ``solarnav.calibration/2``); :mod:`calib.parameter_export`: PX4 EKF2
+  .params and ArduPilot EKF3 .parm files through one mapping table.
 """

@@ -22,6 +22,7 @@ import pandas as pd
 from calib.allan import MIN_SAMPLES as ALLAN_MIN_SAMPLES
 from calib.allan import AllanFigures, allan_deviation, allan_figures
 from calib.bias import STANDARD_GRAVITY, GravityReference, InflightBias, StationaryBias, stationary_bias
+from calib.figures import Figure, TuneResult
 from calib.fir import MIN_NUMTAPS, FirSpec, default_cutoff_hz, default_numtaps, design_fir, min_samples
 from calib.noise import noise_figures
 from calib.segments import (
@@ -175,6 +176,12 @@ class Calibration:
         Per IMU sensor and axis, from the stationary segment (empty without one).
     warnings : tuple of str
         Sensors skipped and why, and other caveats.
+    figures : dict of str -> calib.figures.Figure
+        The filter figures derived from the above, each with its source (:func:`calib.figures.filter_figures`;
+        docs/calibration.md, 'From calibration to filter settings').
+    tuning : dict of str -> calib.figures.TuneResult
+        Per estimator, the noise identified from the flight's innovations (``solarnav calibrate --tune``; empty
+        without it).
     """
 
     source: str
@@ -188,6 +195,8 @@ class Calibration:
     inflight_bias: InflightBias | None
     allan: dict[str, tuple[AllanFigures, ...]]
     warnings: tuple[str, ...] = ()
+    figures: dict[str, Figure] = dataclasses.field(default_factory=dict)
+    tuning: dict[str, TuneResult] = dataclasses.field(default_factory=dict)
 
     def r_matrix(self, sensor: str) -> np.ndarray:
         """Eq 51 matrix of ``sensor`` as an array [unit^2], shape (k, k)."""

@@ -1,9 +1,9 @@
 """CALIB.json: the versioned file a :class:`~calib.calibration.Calibration` is exchanged through.
 
-Schema ``"solarnav.calibration/1"`` (strict JSON; NaN is written as null; units are those of each sensor)::
+Schema ``"solarnav.calibration/2"`` (strict JSON; NaN is written as null; units are those of each sensor)::
 
     {
-      "schema": "solarnav.calibration/1",
+      "schema": "solarnav.calibration/2",
       "source": {"file": str, "sha256": str, "vehicle_type": int | null},
       "noise_choice": "sigma" | "eta",              # figure R is built from (eq 51)
       "sensors": {                                  # accelerometer, gyroscope, magnetometer, barometer,
@@ -37,12 +37,26 @@ Schema ``"solarnav.calibration/1"`` (strict JSON; NaN is written as null; units 
       "tau": {"value": float, "method": "default" | "user" | "likelihood" | "nis",
               "log10_tau_grid": [..], "neg_log_likelihood": [..], "mean_nis": [..], "n_innovations": int,
               "nis_at_tau": float | null, "nis_band": [2], "lag1_autocorrelation": float | null, "note": str},
-      "warnings": [str, ...]
+      "warnings": [str, ...],
+      "figures": {"<name>": <figure>},              # calib.figures.FIGURES names, the filter figures
+      "tuning": {"<estimator>": {                   # noise identified per estimator (solarnav calibrate --tune)
+        "figures": {"<name>": <figure>},            # every figure the estimator ran with after tuning
+        "start": {"<name>": float}, "bounds": {"<name>": [lo, hi]},   # the tuned figures, in their units
+        "log_likelihood_trace": [..], "n_replays": int, "wall_s": float,
+        "nis_before": [<nis>], "nis_after": [<nis>], "notes": [str, ...]}}
     }
 
-"derived" Allan values are informational (recomputed on load). The R matrices are read as written, so a
-hand-edited matrix is honoured. Any other schema or version, or a missing key, is refused with an
-:class:`~ingest.errors.InputError` naming the key.
+    <figure> = {"value": float, "unit": str, "source": str, "axes": [..], "note": str}
+    <nis>    = {"channel": "<sensor>.<component>", "n_updates": int, "mean_nis": float, "band": [lo, hi]}
+
+``figures`` are the calibration's filter figures (docs/calibration.md, 'From calibration to filter settings').
+A figure's ``unit`` must be the unit :data:`calib.figures.FIGURES` gives its name and its ``source`` one of
+:data:`calib.figures.SOURCES`; an unknown name is refused. "derived" Allan values are informational (recomputed on
+load). The R matrices are read as written, so a hand-edited matrix is honoured.
+
+Schema ``"solarnav.calibration/1"`` (the layout above without ``figures`` and ``tuning``) is still read, into a
+:class:`~calib.calibration.Calibration` with empty ``figures`` and ``tuning``; writing always writes schema 2. Any
+other schema or version, or a missing key, is refused with an :class:`~ingest.errors.InputError` naming the key.
 """
 
 from __future__ import annotations
@@ -58,14 +72,17 @@ import numpy as np
 from calib.allan import AllanFigures
 from calib.bias import GravityReference, InflightBias, StationaryBias
 from calib.calibration import NOISE_CHOICES, SENSORS, Calibration, SensorCalibration
+from calib.figures import FIGURES, SOURCES, ChannelConsistency, Figure, TuneResult
 from calib.fir import FIR_WINDOW, design_fir
 from calib.segments import Segment
 from calib.tau import TauSelection
 from ingest.errors import InputError
 from ingest.files import atomic_write_text
 
-SCHEMA = "solarnav.calibration/1"
+SCHEMA = "solarnav.calibration/2"
 SCHEMA_FAMILY = "solarnav.calibration/"
+#: Older versions still read (without ``figures`` and ``tuning``).
+READABLE_SCHEMAS = (SCHEMA, "solarnav.calibration/1")
 #: R of these sensors is the covariance of a filter INPUT (it enters Q), not of a measurement.
 INPUT_SENSORS = ("accelerometer", "gyroscope")
 
@@ -85,6 +102,8 @@ def calibration_to_dict(cal: Calibration) -> dict[str, Any]:
                      "matrix": [list(row) for row in matrix]} for name, matrix in cal.r.items()},
         "tau": _tau_to_dict(cal.tau),
         "warnings": list(cal.warnings),
+        "figures": _figures_to_dict(cal.figures),
+        "tuning": {name: _tuning_to_dict(t) for name, t in cal.tuning.items()},
     }
     return _nan_to_none(data)
 
@@ -100,10 +119,11 @@ def calibration_from_dict(data: Any, source: str = "CALIB.json") -> Calibration:
     reader = _Reader(source)
     root = reader.obj(data, "")
     schema = reader.text(root, "schema")
-    if schema != SCHEMA:
+    if schema not in READABLE_SCHEMAS:
         if schema.startswith(SCHEMA_FAMILY):
             raise InputError(f"calibration schema version {schema[len(SCHEMA_FAMILY):]!r} is not supported "
-                             f"(this solarnav reads {SCHEMA!r})", source=source, field="schema")
+                             f"(this solarnav reads {', '.join(map(repr, READABLE_SCHEMAS))})", source=source,
+                             field="schema")
         raise InputError(f"not a solarnav calibration: schema {schema!r}, expected {SCHEMA!r}", source=source,
                          field="schema")
     origin = reader.obj(root, "source")
@@ -121,6 +141,8 @@ def calibration_from_dict(data: Any, source: str = "CALIB.json") -> Calibration:
         r[name] = tuple(tuple(row) for row in matrix)
     stationary = reader.nullable(root, "stationary_bias")
     inflight = reader.nullable(root, "inflight_bias")
+    # Schema 1 predates the figures; the caller recomputes them from the calibration when empty.
+    has_figures = schema == SCHEMA
     return Calibration(
         source=reader.text(origin, "file", "source"), sha256=reader.text(origin, "sha256", "source"),
         vehicle_type=reader.optional_integer(origin, "vehicle_type", "source"), noise=noise, sensors=sensors, r=r,
@@ -130,7 +152,10 @@ def calibration_from_dict(data: Any, source: str = "CALIB.json") -> Calibration:
         allan={name: tuple(_allan_from_dict(reader, axis, f"allan.{name}[{k}]")
                            for k, axis in enumerate(reader.array(reader.obj(root, "allan"), name, "allan")))
                for name in reader.obj(root, "allan")},
-        warnings=tuple(reader.texts(root, "warnings")))
+        warnings=tuple(reader.texts(root, "warnings")),
+        figures=_figures_from_dict(reader, reader.obj(root, "figures"), "figures") if has_figures else {},
+        tuning={name: _tuning_from_dict(reader, value, f"tuning.{name}", name)
+                for name, value in reader.obj(root, "tuning").items()} if has_figures else {})
 
 
 def write_calibration(cal: Calibration, path: str | os.PathLike) -> Path:
@@ -214,6 +239,28 @@ def _tau_to_dict(t: TauSelection) -> dict[str, Any]:
         "neg_log_likelihood": list(t.neg_log_likelihood), "mean_nis": list(t.mean_nis),
         "n_innovations": t.n_innovations, "nis_at_tau": t.nis_at_tau, "nis_band": list(t.nis_band),
         "lag1_autocorrelation": t.lag1_autocorrelation, "note": t.note,
+    }
+
+
+def _figure_to_dict(f: Figure) -> dict[str, Any]:
+    return {"value": f.value, "unit": f.unit, "source": f.source, "axes": list(f.axes), "note": f.note}
+
+
+def _figures_to_dict(figures: dict[str, Figure]) -> dict[str, Any]:
+    return {name: _figure_to_dict(f) for name, f in figures.items()}
+
+
+def _consistency_to_dict(c: ChannelConsistency) -> dict[str, Any]:
+    return {"channel": c.channel, "n_updates": c.n_updates, "mean_nis": c.mean_nis, "band": list(c.band)}
+
+
+def _tuning_to_dict(t: TuneResult) -> dict[str, Any]:
+    return {
+        "figures": _figures_to_dict(t.figures), "start": dict(t.start),
+        "bounds": {name: list(bound) for name, bound in t.bounds.items()},
+        "log_likelihood_trace": list(t.log_likelihood_trace), "n_replays": t.n_replays,
+        "nis_before": [_consistency_to_dict(c) for c in t.nis_before],
+        "nis_after": [_consistency_to_dict(c) for c in t.nis_after], "wall_s": t.wall_s, "notes": list(t.notes),
     }
 
 
@@ -395,3 +442,52 @@ def _tau_from_dict(r: _Reader, obj: dict) -> TauSelection:
         n_innovations=r.integer(obj, "n_innovations", path), nis_at_tau=r.number(obj, "nis_at_tau", path),
         nis_band=r.numbers(obj, "nis_band", path, 2),
         lag1_autocorrelation=r.number(obj, "lag1_autocorrelation", path), note=r.text(obj, "note", path))
+
+
+def _figure_name(r: _Reader, name: str, path: str) -> str:
+    """``name`` if it is a :data:`calib.figures.FIGURES` key; fails naming ``path`` otherwise."""
+    if name not in FIGURES:
+        raise r.fail(path, f"unknown figure {name!r}; known: {', '.join(FIGURES)}")
+    return name
+
+
+def _figure_from_dict(r: _Reader, name: str, data: Any, path: str) -> Figure:
+    obj = r.obj(data, "", path)
+    _figure_name(r, name, path)
+    unit, expected = r.text(obj, "unit", path), FIGURES[name][0]
+    if unit != expected:
+        raise r.fail(f"{path}.unit", f"figure {name!r} is in {expected!r}, got {unit!r}")
+    figure_source = r.text(obj, "source", path)
+    if figure_source not in SOURCES:
+        raise r.fail(f"{path}.source", f"unknown source {figure_source!r}; known: {', '.join(map(repr, SOURCES))}")
+    return Figure(name=name, value=r.number(obj, "value", path), source=figure_source,
+                  axes=r.numbers(obj, "axes", path), note=r.text(obj, "note", path))
+
+
+def _figures_from_dict(r: _Reader, obj: dict, path: str) -> dict[str, Figure]:
+    return {name: _figure_from_dict(r, name, value, f"{path}.{name}") for name, value in obj.items()}
+
+
+def _consistency_from_dict(r: _Reader, data: Any, path: str) -> ChannelConsistency:
+    obj = r.obj(data, "", path)
+    return ChannelConsistency(channel=r.text(obj, "channel", path), n_updates=r.integer(obj, "n_updates", path),
+                              mean_nis=r.number(obj, "mean_nis", path), band=r.numbers(obj, "band", path, 2))
+
+
+def _tuning_from_dict(r: _Reader, data: Any, path: str, estimator: str) -> TuneResult:
+    obj = r.obj(data, "", path)
+    start = r.obj(obj, "start", path)
+    bounds = r.obj(obj, "bounds", path)
+    return TuneResult(
+        estimator=estimator, figures=_figures_from_dict(r, r.obj(obj, "figures", path), f"{path}.figures"),
+        start={_figure_name(r, name, f"{path}.start.{name}"): r.number(start, name, f"{path}.start")
+               for name in start},
+        bounds={_figure_name(r, name, f"{path}.bounds.{name}"): r.numbers(bounds, name, f"{path}.bounds", 2)
+                for name in bounds},
+        log_likelihood_trace=r.numbers(obj, "log_likelihood_trace", path),
+        n_replays=r.integer(obj, "n_replays", path),
+        nis_before=tuple(_consistency_from_dict(r, c, f"{path}.nis_before[{k}]")
+                         for k, c in enumerate(r.array(obj, "nis_before", path))),
+        nis_after=tuple(_consistency_from_dict(r, c, f"{path}.nis_after[{k}]")
+                        for k, c in enumerate(r.array(obj, "nis_after", path))),
+        wall_s=r.number(obj, "wall_s", path), notes=tuple(r.texts(obj, "notes", path)))

@@ -17,14 +17,16 @@ rows, time-sorted measurement events, origin, sensor plan and initial alignment.
 
 from __future__ import annotations
 
+import dataclasses
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
 import pandas as pd
 
 from estimators.config import EstimatorConfig
+from estimators.consistency import channel_consistency, consistency_warnings
 from estimators.core.results import DIAGNOSTIC_COLUMNS, STATE_COLUMNS, EstimatorReport, EstimatorRun
 from estimators.direct.run import run as run_direct
 from estimators.indirect.run import run as run_indirect
@@ -40,6 +42,21 @@ ESTIMATORS: dict[str, Callable[..., EstimatorRun]] = {
     "three_stage": run_three_stage,
     "full_state_direct": run_direct,
     "full_state_indirect": run_indirect,
+}
+#: Calibrated figures an estimator does not use, and why (docs/calibration.md, 'From calibration to filter
+#: settings'); the others set what ``config.calibrated.provenance`` says.
+_STAGE1 = "no stage-1 accelerometer update (the accelerometer drives the propagation)"
+_BIAS_STATE = "estimated as a state of the filter"
+_NO_STATE = "no such state in the three-stage estimator"
+IGNORED_FIGURES: dict[str, dict[str, str]] = {
+    "three_stage": {"gyro_bias_walk": _NO_STATE, "accel_bias_walk": _NO_STATE, "accel_bias_walk_z": _NO_STATE,
+                    "mag_bias_walk": _NO_STATE, "baro_bias_walk": _NO_STATE,
+                    "baro_noise": "the barometer is a low-passed input, not a measurement update",
+                    "sideslip_noise": "no sideslip pseudo-measurement"},
+    "full_state_direct": {"accel_tau": _STAGE1, "accel_axis_noise_density": _STAGE1, "accel_stage1_floor": _STAGE1,
+                          "gyro_bias": _BIAS_STATE, "accel_bias": _BIAS_STATE},
+    "full_state_indirect": {"accel_tau": _STAGE1, "accel_axis_noise_density": _STAGE1,
+                            "accel_stage1_floor": _STAGE1, "gyro_bias": _BIAS_STATE, "accel_bias": _BIAS_STATE},
 }
 #: Default estimator selection (all three, paper order).
 DEFAULT_ESTIMATORS = ("three_stage", "full_state_direct", "full_state_indirect")
@@ -93,7 +110,8 @@ def parse_estimator_names(names: str | Sequence[str]) -> tuple[str, ...]:
 
 def run_estimators(flight_log: FlightLog, *, estimators: str | Sequence[str] = DEFAULT_ESTIMATORS,
                    config: EstimatorConfig | None = None, heading: str = "mag", rate_hz: float = 50.0,
-                   sun_observations: pd.DataFrame | None = None) -> ReplayResult:
+                   sun_observations: pd.DataFrame | None = None,
+                   configs: Mapping[str, EstimatorConfig] | None = None) -> ReplayResult:
     """Run estimators on one log.
 
     Parameters
@@ -111,6 +129,14 @@ def run_estimators(flight_log: FlightLog, *, estimators: str | Sequence[str] = D
         Output rate [Hz] (epochs ``k / rate_hz`` on the log clock).
     sun_observations : pandas.DataFrame, optional
         Pre-solved sun vectors (see :func:`estimators.inputs.build.build_replay_inputs`).
+    configs : mapping of estimator name -> EstimatorConfig, optional
+        Per-estimator settings overriding ``config`` (noise identified per estimator,
+        :func:`estimators.config.config_from_calibration` with ``estimator=``); the replay inputs are built once per
+        distinct configuration.
+
+    Every report carries ``details["consistency"]`` (mean NIS per channel, :mod:`estimators.consistency`) and
+    ``details["calibration"]`` (each calibrated figure behind the run's settings: its source and what this
+    estimator did with it). A run whose settings come from a calibration gets a warning per inconsistent channel.
 
     Returns
     -------
@@ -125,15 +151,18 @@ def run_estimators(flight_log: FlightLog, *, estimators: str | Sequence[str] = D
     if heading not in HEADING_SOURCES:
         raise InputError(f"heading must be one of {', '.join(HEADING_SOURCES)}, got {heading!r}", field="heading")
     config = EstimatorConfig() if config is None else config
+    configs = {name: (configs or {}).get(name, config) for name in names}
     functions = {name: estimator_function(name) for name in names}
-    started = time.perf_counter()
-    inputs = build_replay_inputs(flight_log, config, rate_hz=rate_hz, heading=heading,
-                                 sun_observations=sun_observations)
-    prepare_s = time.perf_counter() - started
-    runs, reports = [], {}
+    runs, reports, built = [], {}, {}
     for name, function in functions.items():
-        run = function(flight_log, inputs, config)
-        reports[name] = _with_timings(run.report, {"prepare": prepare_s, **run.report.timings_s})
+        started = time.perf_counter()
+        run_config = configs[name]
+        if run_config not in built:
+            built[run_config] = build_replay_inputs(flight_log, run_config, rate_hz=rate_hz, heading=heading,
+                                                    sun_observations=sun_observations)
+        prepare_s = time.perf_counter() - started
+        run = function(flight_log, built[run_config], run_config)
+        reports[name] = _checked_report(run, run_config, {"prepare": prepare_s, **run.report.timings_s})
         runs.append(run)
     state_columns = dict.fromkeys(column for run in runs for column in run.states.columns)
     extra = [column for column in state_columns if column not in STATE_COLUMNS]
@@ -158,5 +187,19 @@ def _stacked(names: tuple[str, ...], frames: list[pd.DataFrame], columns: Sequen
     return pd.DataFrame(table, copy=False)
 
 
-def _with_timings(report: EstimatorReport, timings: dict[str, float]) -> EstimatorReport:
-    return replace(report, timings_s=timings)
+def _checked_report(run: EstimatorRun, config: EstimatorConfig, timings: dict[str, float]) -> EstimatorReport:
+    """The run's report with its timings, the NIS consistency per channel, the calibration provenance and, for a
+    calibrated run, a warning per inconsistent channel."""
+    report = run.report
+    channels = channel_consistency(run.diagnostics)
+    provenance = config.calibrated.provenance
+    ignored = IGNORED_FIGURES.get(report.estimator, {})
+    calibration = [{"figure": figure, "source": source,
+                    "use": f"ignored: {ignored[figure]}" if figure in ignored else use}
+                   for figure, source, use in provenance]
+    warnings = list(report.warnings)
+    if provenance:
+        warnings += consistency_warnings(report.estimator, channels)
+    details = {**report.details, "consistency": [dataclasses.asdict(c) for c in channels],
+               "calibration": calibration}
+    return replace(report, timings_s=timings, warnings=tuple(warnings), details=details)

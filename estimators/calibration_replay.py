@@ -7,13 +7,16 @@ It lives in the estimators layer because it runs a filter; :func:`calib.tau.choo
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
+from dataclasses import replace
 
+from calib.bias import InflightBias
 from calib.calibration import Calibration
 from calib.tau import Innovations
 from estimators.config import config_from_calibration
+from estimators.indirect.run import run as run_indirect
 from estimators.inputs.build import build_replay_inputs
-from estimators.three_stage.run import ThreeStageOptions
 from estimators.three_stage.run import run as run_three_stage
 from ingest.errors import InputError
 from ingest.flightlog import FlightLog
@@ -23,7 +26,7 @@ def tau_replay(log: FlightLog, cal: Calibration) -> Callable[[float], Innovation
     """``tau -> Innovations`` of the three-stage estimator's body-y accelerometer updates (every update, gated or
     not) on ``log`` with the noise of ``cal``: the replay :func:`calib.tau.choose_tau` needs.
 
-    The replay inputs are built once; each call runs the filter with ``ThreeStageOptions(accel_tau=tau)``.
+    The replay inputs are built once; each call runs the filter with that tau in ``config.calibrated.accel_tau``.
 
     Raises
     ------
@@ -34,7 +37,7 @@ def tau_replay(log: FlightLog, cal: Calibration) -> Callable[[float], Innovation
     inputs = build_replay_inputs(log, config)
 
     def replay(tau: float) -> Innovations:
-        run = run_three_stage(log, inputs, config, options=ThreeStageOptions(accel_tau=tau))
+        run = run_three_stage(log, inputs, replace(config, calibrated=replace(config.calibrated, accel_tau=tau)))
         diagnostics = run.diagnostics
         rows = diagnostics[(diagnostics["sensor"] == "accel") & (diagnostics["component"] == "y")]
         if rows.empty:
@@ -43,3 +46,22 @@ def tau_replay(log: FlightLog, cal: Calibration) -> Callable[[float], Innovation
         return Innovations(rows["innovation"].to_numpy(dtype=float), rows["innovation_var"].to_numpy(dtype=float))
 
     return replay
+
+
+def inflight_bias(log: FlightLog, cal: Calibration) -> InflightBias | None:
+    """The error-state filter's final gyro and accelerometer bias states on ``log`` with the noise of ``cal`` (None
+    without GPS, when the accelerometer biases are not observable, or when the filter diverged)."""
+    config = config_from_calibration(cal)
+    inputs = build_replay_inputs(log, config, rate_hz=1.0)
+    if not inputs.plan.has_gps:
+        return None
+    run = run_indirect(log, inputs, config)
+    final, std = run.report.details["final_state"], run.report.details["final_state_std"]
+    if run.report.resets or not all(math.isfinite(final[f"b{k}{a}"]) for k in "ga" for a in "xyz"):
+        return None
+    end_s = float(run.states["time_s"].iloc[-1])
+    return InflightBias(source="full_state_indirect", window_s=(end_s, end_s),
+                        gyro_bias_rad_s=tuple(final[f"bg{a}"] for a in "xyz"),
+                        gyro_bias_std_rad_s=tuple(std.get(f"dbg{a}", math.nan) for a in "xyz"),
+                        accel_bias_m_s2=tuple(final[f"ba{a}"] for a in "xyz"),
+                        accel_bias_std_m_s2=tuple(std.get(f"dba{a}", math.nan) for a in "xyz"))

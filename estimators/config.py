@@ -18,6 +18,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field, fields, replace
 
+from calib.figures import SOURCE_TUNED, SOURCE_USER
 from ingest.errors import InputError
 
 #: Default EKF2_GPS_DELAY of PX4 [ms], used when a log has no such parameter.
@@ -92,9 +93,14 @@ class NoiseConfig:
         Floor of the GPS velocity sigma [m/s] (docs/three_stage.md, 'Stage 3: navigation and wind': 0.1 m/s).
     gps_vel_sigma_default_m_s : float
         GPS velocity sigma when the receiver reports no speed accuracy [m/s] (PX4 EKF2_GPS_V_NOIS 0.3... 0.5).
+    gps_vel_accuracy_scale : float
+        Factor on the GPS velocity sigma (receiver accuracy or the default, floored) [-]; 1: as reported.
     mag_sigma : float
         Magnetometer noise per axis in units of the field strength (docs/three_stage.md, 'Stage 2: heading': 0.02-0.05
         for unit vectors).
+    mag_sigma_axes : tuple of 3 float or None
+        Per-axis magnetometer noise (body x, y, z) in units of the field strength; None: ``mag_sigma`` on every
+        axis.
     sun_sigma_rad : float
         Sun-vector direction noise per tangent axis [rad] (docs/sun.md, 'Quality': a few tenths of a degree to 1 deg).
     zero_velocity_sigma_m_s : float
@@ -122,7 +128,9 @@ class NoiseConfig:
     gps_hgt_epv_scale: float = 1.0
     gps_vel_sigma_floor_m_s: float = 0.1
     gps_vel_sigma_default_m_s: float = 0.3
+    gps_vel_accuracy_scale: float = 1.0
     mag_sigma: float = 0.03
+    mag_sigma_axes: tuple[float, float, float] | None = None
     sun_sigma_rad: float = math.radians(0.5)
     zero_velocity_sigma_m_s: float = 1.0
 
@@ -244,6 +252,40 @@ class TimingConfig:
 
 
 @dataclass(frozen=True)
+class CalibratedInputs:
+    """Calibrated figures that are not noise densities: biases applied to the three-stage estimator's inputs (it
+    has no bias states) and its stage-1 accelerometer weighting (docs/calibration.md, 'From calibration to filter
+    settings').
+
+    Attributes
+    ----------
+    gyro_bias_rad_s : tuple of 3 float or None
+        Gyro bias subtracted from the three-stage estimator's rates [rad/s, body FRD]; None: the bias of its own
+        still-window alignment.
+    accel_bias_m_s2 : tuple of 3 float or None
+        Accelerometer bias subtracted from the three-stage estimator's specific force [m/s^2, body FRD].
+    accel_tau : float
+        Eq 52 penalty factor on the stage-1 body-y accelerometer variance [-].
+    accel_axis_density : tuple of 3 float or None
+        Per-axis accelerometer density for the stage-1 R (eq 51) [m/s^2/sqrt(Hz)]; None: the isotropic
+        ``noise.accel_noise_m_s2_sqrt_hz``.
+    accel_stage1_floor_m_s2 : float or None
+        Model-error floor of the stage-1 accelerometer sigma at its update rate [m/s^2]; None: the estimator's
+        default.
+    provenance : tuple of (str, str, str)
+        ``(figure, source, how it was used)`` for every calibrated figure behind this configuration (empty for
+        the defaults); each run's report lists them with what the estimator did with each.
+    """
+
+    gyro_bias_rad_s: tuple[float, float, float] | None = None
+    accel_bias_m_s2: tuple[float, float, float] | None = None
+    accel_tau: float = 1.0
+    accel_axis_density: tuple[float, float, float] | None = None
+    accel_stage1_floor_m_s2: float | None = None
+    provenance: tuple[tuple[str, str, str], ...] = ()
+
+
+@dataclass(frozen=True)
 class EstimatorConfig:
     """Everything an estimator run needs besides the log.
 
@@ -266,6 +308,8 @@ class EstimatorConfig:
     gps_velocity_mode : str
         ``"ned"`` (default, docs/direct.md, 'Measurement models') or ``"paper"`` (ground speed and course, eqs 42-43
         corrected).
+    calibrated : CalibratedInputs
+        Biases, eq 52 tau and stage-1 weighting from a calibration (defaults: none).
     """
 
     noise: NoiseConfig = field(default_factory=NoiseConfig)
@@ -277,6 +321,7 @@ class EstimatorConfig:
     mag_bias_states: bool = True
     baro_bias_state: bool = True
     gps_velocity_mode: str = "ned"
+    calibrated: CalibratedInputs = field(default_factory=CalibratedInputs)
 
     def __post_init__(self):
         validate_config(self)
@@ -286,49 +331,118 @@ class EstimatorConfig:
         return replace(self, noise=replace(self.noise, **changes))
 
 
-def config_from_calibration(calibration, base: EstimatorConfig | None = None) -> EstimatorConfig:
-    """Noise settings from a :class:`calib.calibration.Calibration` (CALIB.json), other settings from ``base``.
+def config_from_calibration(calibration, base: EstimatorConfig | None = None, *,
+                            estimator: str | None = None) -> EstimatorConfig:
+    """Settings from a :class:`calib.calibration.Calibration` (CALIB.json), other settings from ``base``.
 
-    Mapping (per-sample figures at the stream's rate ``fs`` -> this module's conventions):
+    The figures are ``calibration.tuning[estimator].figures`` when ``solarnav calibrate --tune`` identified noise
+    for ``estimator``, else the calibration's figures (:func:`calib.filter_figures.calibration_figures`); they are
+    mapped by :func:`config_from_figures`.
+    """
+    from calib.filter_figures import calibration_figures  # deferred: the calibration stack is slow to import
 
-    * gyroscope, accelerometer: white-noise density ``sqrt(mean_axis(sigma^2) / fs)`` (the filters treat the IMU
-      noise as isotropic; the accelerometer's eq 52 ``tau`` weights a stage-1 measurement, not the input noise,
-      so the per-axis sigmas are used, not the R matrix);
-    * barometer, airspeed: ``sqrt(R)`` of the calibration (eq 51, hand edits honoured);
-    * magnetometer: ``sqrt(mean diag R)`` divided by the mean field strength of the calibration segment (the
-      filters use the field in units of its strength).
+    tuned = calibration.tuning.get(estimator) if estimator is not None else None
+    figures = tuned.figures if tuned is not None else calibration_figures(calibration)
+    return config_from_figures(figures, base)
 
-    GPS noise stays per sample from the receiver's accuracy fields (eph, speed accuracy).
+
+#: Figures taken as they are (identified as a whole filter setting, or set by the user).
+_TOTAL_SOURCES = (SOURCE_TUNED, SOURCE_USER)
+#: Noise figure -> NoiseConfig field it sets (the measured ones root-sum-squared with the default, see below).
+_NOISE_FIELDS = {
+    "gyro_noise_density": "gyro_noise_rad_s_sqrt_hz", "accel_noise_density": "accel_noise_m_s2_sqrt_hz",
+    "gyro_bias_walk": "gyro_bias_rw_rad_s2_sqrt_hz", "accel_bias_walk": "accel_bias_rw_m_s3_sqrt_hz",
+    "accel_bias_walk_z": "accel_bias_rw_z_m_s3_sqrt_hz", "baro_noise": "baro_sigma_m",
+    "baro_bias_walk": "baro_bias_rw_m_sqrt_s", "airspeed_noise": "airspeed_sigma_m_s",
+    "sideslip_noise": "sideslip_sigma_m_s", "gps_vel_noise": "gps_vel_sigma_default_m_s",
+    "gps_vel_noise_scale": "gps_vel_accuracy_scale", "wind_walk": "wind_rw_m_s_sqrt_s",
+}
+
+#: GPS position scale figure -> the NoiseConfig factors and floors it multiplies.
+_GPS_SCALES = {"gps_pos_noise_scale": ("gps_pos_eph_scale", "gps_pos_sigma_floor_m"),
+               "gps_hgt_noise_scale": ("gps_hgt_epv_scale", "gps_hgt_sigma_floor_m")}
+
+
+def config_from_figures(figures, base: EstimatorConfig | None = None) -> EstimatorConfig:
+    """Settings from filter figures (``{name: calib.figures.Figure}``), other settings from ``base``.
+
+    docs/calibration.md, 'From calibration to filter settings':
+
+    * a MEASURED noise figure (still segment, Allan, in-flight residual) is the sensor's noise; the filter also
+      needs its model error (scale factors, misalignment, vibration, pitot and static-port errors, unmodelled
+      dynamics), which the default of ``base`` stands for: the setting is ``sqrt(default^2 + measured^2)``, never
+      below the default. A noisier sensor than the default assumes raises the setting; a quiet one does not make
+      the filter trust a model it cannot trust.
+    * a TUNED or USER figure (source ``tuned (innovation likelihood)`` or ``user``) is a whole filter setting and
+      is used as it is.
+    * the magnetometer noise [gauss] is divided by the field strength (the filters fuse the field in units of its
+      strength), per axis; the GPS position scale multiplies the receiver-accuracy factors and floors.
+    * biases, eq 52 tau and the per-axis stage-1 density go to :class:`CalibratedInputs` (the three-stage
+      estimator, which has no bias states).
+
+    Every figure's source and use is recorded in ``config.calibrated.provenance``.
     """
     config = EstimatorConfig() if base is None else base
-    changes = {}
-    sensors = calibration.sensors
+    noise, changes, calibrated, provenance = config.noise, {}, {}, []
 
-    def density(name):
-        sensor = sensors[name]
-        sigma = [s for s in sensor.noise(calibration.noise) if math.isfinite(s)]
-        if not sigma or not sensor.fir.fs_hz > 0:
-            return None
-        return math.sqrt(sum(s * s for s in sigma) / len(sigma) / sensor.fir.fs_hz)
+    def setting(value, source, default):
+        if source in _TOTAL_SOURCES:
+            return value, "as is"
+        return math.hypot(default, value), f"sqrt(default {default:.4g}^2 + measured^2)"
 
-    def r_sigma(name):
-        if name not in calibration.r:
-            return None
-        diag = [row[i] for i, row in enumerate(calibration.r[name]) if math.isfinite(row[i]) and row[i] >= 0]
-        return math.sqrt(sum(diag) / len(diag)) if diag else None
-
-    if "gyroscope" in sensors:
-        changes["gyro_noise_rad_s_sqrt_hz"] = density("gyroscope")
-    if "accelerometer" in sensors:
-        changes["accel_noise_m_s2_sqrt_hz"] = density("accelerometer")
-    changes["baro_sigma_m"] = r_sigma("barometer")
-    changes["airspeed_sigma_m_s"] = r_sigma("airspeed")
-    if "magnetometer" in sensors and r_sigma("magnetometer") is not None:
-        strength = math.sqrt(sum(m * m for m in sensors["magnetometer"].mean))
-        if strength > 0:
-            changes["mag_sigma"] = r_sigma("magnetometer") / strength
-    changes = {k: v for k, v in changes.items() if v is not None and math.isfinite(v) and v > 0}
-    return config.with_noise(**changes)
+    for name, figure in figures.items():
+        if not math.isfinite(figure.value):
+            provenance.append((name, figure.source, "ignored: not a finite number"))
+            continue
+        if name in _NOISE_FIELDS:
+            field_name = _NOISE_FIELDS[name]
+            default = getattr(noise, field_name)
+            if default is None:  # accel_bias_rw_z: the x/y walk unless given
+                default = noise.accel_bias_rw_m_s3_sqrt_hz
+            value, how = setting(figure.value, figure.source, default)
+            changes[field_name] = value
+            provenance.append((name, figure.source, f"noise.{field_name} = {value:.4g} ({how})"))
+        elif name == "mag_noise":
+            strength = figures["mag_field_strength"].value if "mag_field_strength" in figures else math.nan
+            if not strength > 0:
+                provenance.append((name, figure.source, "ignored: no field strength to normalise by"))
+                continue
+            axes = figure.axes or (figure.value,) * 3
+            values = tuple(setting(a / strength, figure.source, noise.mag_sigma)[0] for a in axes)
+            changes["mag_sigma_axes"] = values
+            provenance.append((name, figure.source, "noise.mag_sigma_axes = (" + ", ".join(f"{v:.4g}" for v in values)
+                               + f") field units (/ {strength:.4g} gauss, "
+                               + ("as is)" if figure.source in _TOTAL_SOURCES else "root-sum-squared with the "
+                                                                                   "default)")))
+        elif name == "mag_bias_walk":
+            strength = figures["mag_field_strength"].value if "mag_field_strength" in figures else math.nan
+            if strength > 0:
+                value, how = setting(figure.value / strength, figure.source, noise.mag_bias_rw_sqrt_s)
+                changes["mag_bias_rw_sqrt_s"] = value
+                provenance.append((name, figure.source, f"noise.mag_bias_rw_sqrt_s = {value:.4g} ({how})"))
+        elif name in _GPS_SCALES:
+            for field_name in _GPS_SCALES[name]:
+                changes[field_name] = getattr(noise, field_name) * figure.value
+            provenance.append((name, figure.source, f"{' and '.join(_GPS_SCALES[name])} x {figure.value:.4g}"))
+        elif name == "accel_tau":
+            calibrated["accel_tau"] = figure.value
+            provenance.append((name, figure.source, f"three-stage stage-1 body-y variance x {figure.value:.4g}"))
+        elif name == "accel_axis_noise_density" and len(figure.axes) == 3:
+            calibrated["accel_axis_density"] = tuple(figure.axes)
+            provenance.append((name, figure.source, "three-stage stage-1 R per axis (floored by model error)"))
+        elif name == "accel_stage1_floor":
+            calibrated["accel_stage1_floor_m_s2"] = figure.value
+            provenance.append((name, figure.source, f"three-stage stage-1 sigma floor {figure.value:.4g} m/s^2"))
+        elif name in ("gyro_bias", "accel_bias") and len(figure.axes) == 3:
+            calibrated[f"{name}_{'rad_s' if name == 'gyro_bias' else 'm_s2'}"] = tuple(figure.axes)
+            provenance.append((name, figure.source, "removed from the three-stage estimator's inputs"))
+        elif name == "mag_field_strength":
+            provenance.append((name, figure.source, "normalises the magnetometer figures"))
+        else:
+            provenance.append((name, figure.source, "ignored: no setting takes it"))
+    noise = replace(noise, **changes)
+    calibrated_inputs = replace(config.calibrated, **calibrated, provenance=tuple(provenance))
+    return replace(config, noise=noise, calibrated=calibrated_inputs)
 
 
 def validate_config(config: EstimatorConfig) -> None:
@@ -339,9 +453,10 @@ def validate_config(config: EstimatorConfig) -> None:
             value = getattr(section, item.name)
             if value is None:
                 continue
-            if not isinstance(value, (int, float)) or math.isnan(value) or value < 0:
-                raise InputError(f"must be a non-negative number, got {value!r}",
-                                 field=f"{section_name}.{item.name}")
+            for number in (value if isinstance(value, tuple) else (value,)):
+                if not isinstance(number, (int, float)) or math.isnan(number) or number < 0:
+                    raise InputError(f"must be a non-negative number, got {value!r}",
+                                     field=f"{section_name}.{item.name}")
     for name in ("covariance_rate_hz", "pseudo_rate_hz", "max_imu_gap_factor"):
         if not getattr(config.timing, name) > 0:
             raise InputError("must be positive", field=f"timing.{name}")

@@ -7,6 +7,12 @@ coordinated-turn bank ``tan mu = V psi_dot / g``, sideslip ``beta = k mu`` and c
 Velocity, acceleration, attitude and body rates are evaluated analytically from the smooth plan (no numerical
 differentiation); only the horizontal position is integrated (fourth-order corrected trapezoid). Specific force
 ``f_b = R^T (a_n - g_n)`` with local normal gravity. The earth's rotation is ignored (below MEMS gyro resolution).
+
+With turbulence (``WindConfig.turbulence``) the wind gains the Dryden and discrete-gust velocity ``g`` (3-D) and the
+aircraft responds (:mod:`sim.response`): ``v = v_air + airborne * (wind + f)`` with ``f`` the lagged ``g``, so the
+airspeed ``|v - wind - g|`` carries the high-passed gust; the height gains a bounded displacement (rate ``f_d``); the
+Euler angles ``(mu, gamma, psi)`` of the velocity axes gain the response's perturbations and their rates enter
+``W(Theta)``, so rates and specific force stay exact (docs/evaluation.md, 'Turbulence (Dryden and discrete gusts)').
 """
 
 from __future__ import annotations
@@ -19,6 +25,8 @@ import pandas as pd
 from estimators.environment import STANDARD_GRAVITY_M_S2, local_gravity_m_s2, ned_to_geodetic
 from ingest.frames import euler_to_quat
 from sim.mission import Mission, plan_mission
+from sim.response import Response, respond
+from sim.turbulence import TurbulenceField, turbulence_field
 from sim.wind import WindConfig, wind_ned
 
 
@@ -85,9 +93,9 @@ class Truth:
     gravity_m_s2 : numpy.ndarray, shape (N,)
         Local normal gravity [m/s^2].
     wind_ned_m_s : numpy.ndarray, shape (N, 3)
-        Wind (velocity of the air mass), NED [m/s].
+        Wind (velocity of the air mass), NED [m/s]; the down component is nonzero only with turbulence.
     airspeed_m_s : numpy.ndarray, shape (N,)
-        True airspeed ``|v - wind|`` [m/s].
+        True airspeed ``|v - wind|`` (3-D) [m/s].
     airborne : numpy.ndarray, shape (N,)
         0 on the ground, 1 in flight (smooth in between).
     """
@@ -182,6 +190,18 @@ def _bank_rates(speed, speed_rate, turn, turn_rate):
     return np.arctan(load), (speed_rate * turn + speed * turn_rate) / STANDARD_GRAVITY_M_S2 / (1.0 + load * load)
 
 
+def _turbulence(wind: WindConfig, plan, duration_s: float,
+                rng: np.random.Generator) -> tuple[TurbulenceField, Response]:
+    """Draw the turbulence along the plan and the aircraft's response to it."""
+    config = wind.turbulence
+    field = turbulence_field(config, duration_s, plan.speed_m_s, plan.height_agl_m, plan.heading_rad, rng)
+    knots = field.knot_tau_s
+    speed = np.maximum(plan.speed_m_s(knots), config.min_speed_m_s)
+    response = respond(knots, field.ned_m_s(knots), speed, plan.heading_rad(knots), plan.height_agl_m(knots),
+                       plan.airborne(knots))
+    return field, response
+
+
 def fly(mission: Mission, site: Site, wind: WindConfig, rng: np.random.Generator, *, duration_s: float | None = None,
         rate_hz: float = 250.0) -> Truth:
     """Fly ``mission`` at ``site`` through a wind realisation and return the true state.
@@ -193,7 +213,7 @@ def fly(mission: Mission, site: Site, wind: WindConfig, rng: np.random.Generator
     site : Site
         Location, time and atmosphere.
     wind : WindConfig
-        Wind model; its random components are drawn from ``rng``.
+        Wind model; its random components are drawn from ``rng`` (turbulence, when configured, after the others).
     rng : numpy.random.Generator
         Source of the wind draws.
     duration_s : float, optional
@@ -234,6 +254,14 @@ def fly(mission: Mission, site: Site, wind: WindConfig, rng: np.random.Generator
     accel = (np.column_stack([speed_rate * cos_h - speed * sin_h * turn, speed_rate * sin_h + speed * cos_h * turn,
                               -climb_rate])
              + airborne_rate[:, None] * wind_n + airborne[:, None] * wind_rate)
+    if wind.turbulence is not None:
+        field, response = _turbulence(wind, plan, tau[-1], rng)
+        vel = vel + response.velocity_ned_m_s(tau)
+        accel = accel + response.velocity_ned_m_s(tau, 1)
+        height = height - response.down_m(tau)
+        air_ned = wind_n + field.ned_m_s(tau)
+    else:
+        response, air_ned = None, wind_n
     # horizontal position: trapezoid corrected with the end-point accelerations (exact for cubic motion)
     step = 0.5 * dt * (vel[1:, :2] + vel[:-1, :2]) + dt * dt / 12.0 * (accel[:-1, :2] - accel[1:, :2])
     pos = np.column_stack([np.vstack([np.zeros((1, 2)), np.cumsum(step, axis=0)]), -height])
@@ -246,6 +274,11 @@ def fly(mission: Mission, site: Site, wind: WindConfig, rng: np.random.Generator
     gamma_rate = np.divide(speed * climb_rate - climb * speed_rate, denom, out=np.zeros(n), where=denom > 0)
     bank, bank_rate = _bank_rates(speed, speed_rate, turn, turn_rate)
     beta, beta_rate = man.sideslip_per_bank * bank, man.sideslip_per_bank * bank_rate
+    if response is not None:  # perturbed Euler angles and rates of the outer rotation
+        euler, euler_rate = response.euler_rad(tau), response.euler_rad(tau, 1)
+        bank, gamma, heading = bank + euler[:, 0], gamma + euler[:, 1], heading + euler[:, 2]
+        bank_rate, gamma_rate = bank_rate + euler_rate[:, 0], gamma_rate + euler_rate[:, 1]
+        turn = turn + euler_rate[:, 2]
     alpha = np.radians(man.alpha_deg)
     q_inner = euler_to_quat(np.zeros(n), np.full(n, alpha), -beta)
     q_nb = _quat_product(euler_to_quat(bank, gamma, heading), q_inner)
@@ -263,4 +296,4 @@ def fly(mission: Mission, site: Site, wind: WindConfig, rng: np.random.Generator
                  origin=(site.lat_deg, site.lon_deg, site.ground_alt_m), segments=plan.segments,
                  pos_ned_m=pos, vel_ned_m_s=vel, accel_ned_m_s2=accel, lat_deg=lat, lon_deg=lon, alt_m=alt,
                  q_nb=q_nb, rates_rad_s=rates, specific_force_m_s2=specific_force, gravity_m_s2=gravity,
-                 wind_ned_m_s=wind_n, airspeed_m_s=np.linalg.norm(vel - wind_n, axis=1), airborne=airborne)
+                 wind_ned_m_s=air_ned, airspeed_m_s=np.linalg.norm(vel - air_ned, axis=1), airborne=airborne)

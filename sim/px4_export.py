@@ -161,11 +161,15 @@ def _jsonable(value):
 
 
 def side_file(result: SimResult) -> dict:
-    """JSON-ready record of the run: scenario (mission, site, wind, sensor grades), seed, mission segments
-    [s of log clock], the UTC offset and the injected sensor errors."""
+    """JSON-ready record of the run: scenario (mission, site, wind with its turbulence and discrete gusts when
+    configured, sensor grades), seed, mission segments [s of log clock], the UTC offset and the injected sensor
+    errors."""
     start = result.log.meta.start_time_s
+    scenario = dataclasses.asdict(result.scenario)
+    if scenario["wind"]["turbulence"] is None:  # keeps the record of a scenario without turbulence as it was
+        del scenario["wind"]["turbulence"]
     return _jsonable({
-        "scenario": dataclasses.asdict(result.scenario) | {"mission": {
+        "scenario": scenario | {"mission": {
             "legs": [{"leg": type(leg).__name__, **dataclasses.asdict(leg)} for leg in result.scenario.mission.legs],
             "initial_heading_deg": result.scenario.mission.initial_heading_deg,
             "manoeuvre": dataclasses.asdict(result.scenario.mission.manoeuvre)}},

@@ -25,6 +25,14 @@
     (0.06 gauss/A: up to 0.24 gauss at full panel current, 0.17 gauss in this flight, a third of the earth
     field), so it changes with the bank angle through the sun's incidence on the wing. The proof case of
     sun-aided heading (``tests/test_sun_aided.py``).
+``turbulent``
+    About 10.4 minutes at low altitude, where turbulence is realistic: 60 s at rest, hand launch, circling climb to
+    150 m above ground, cruise 120 s, three loiter circles of 100 m radius, half turn, cruise 120 s back, circling
+    descent, landing and 10 s at rest; 5 m/s mean wind from 300 deg (slowly varying), moderate Dryden turbulence
+    (W20 = 12 m/s: at 150 m sigma_u = sigma_v = 1.49 m/s, sigma_w = 1.2 m/s, L_u = L_v = 287 m, L_w = 150 m) and
+    four discrete 1-cosine gusts: a 3 m/s head gust over 40 m (150 s), a 2.5 m/s updraft over 30 m (200 s), a
+    2 m/s gust from the right over 60 m in the loiter (300 s) and a 2 m/s downdraft over 20 m (480 s). The gusts
+    move the aircraft (docs/evaluation.md, 'Turbulence (Dryden and discrete gusts)').
 """
 
 from __future__ import annotations
@@ -36,6 +44,7 @@ from sim.kinematics import Site
 from sim.mission import ChangeAltitude, Cruise, HandLaunch, Land, Mission, Still, Turn
 from sim.photocells import SunCellGrade
 from sim.sensors import AirspeedGrade, BaroGrade, GpsGrade, ImuGrade, MagGrade
+from sim.turbulence import DiscreteGust, TurbulenceConfig
 from sim.wind import WindConfig
 
 
@@ -100,6 +109,15 @@ _PAPER_MISSION = Mission(
 
 _PAPER = Scenario(name="paper", mission=_PAPER_MISSION, seed=3)
 
+_TURBULENT_MISSION = Mission(
+    legs=(Still(60.0), HandLaunch(airspeed_m_s=12.5), ChangeAltitude(150.0, 3.0, turn_radius_m=150.0),
+          Cruise(120.0), Turn(3 * 360.0, radius_m=100.0), Turn(180.0, radius_m=150.0), Cruise(120.0),
+          ChangeAltitude(0.0, 3.0, turn_radius_m=150.0, clockwise=False), Land(), Still(10.0)),
+    initial_heading_deg=300.0)
+_TURBULENT_WIND = WindConfig(speed_m_s=5.0, slow_sigma_m_s=0.5, turbulence=TurbulenceConfig(
+    w20_m_s=12.0, gusts=(DiscreteGust(150.0, -3.0, 40.0, "u"), DiscreteGust(200.0, -2.5, 30.0, "w"),
+                         DiscreteGust(300.0, -2.0, 60.0, "v"), DiscreteGust(480.0, 2.0, 20.0, "w"))))
+
 #: Every named scenario.
 SCENARIOS: dict[str, Scenario] = {
     "paper": _PAPER,
@@ -119,4 +137,5 @@ SCENARIOS: dict[str, Scenario] = {
                               Turn(2 * 360.0, radius_m=100.0), Cruise(45.0), Turn(180.0, radius_m=120.0),
                               Cruise(45.0)), initial_heading_deg=300.0),
         sensors=SensorSpec(mag=MagGrade(solar_gauss_per_a=0.06)), seed=13),
+    "turbulent": Scenario(name="turbulent", mission=_TURBULENT_MISSION, wind=_TURBULENT_WIND, seed=17),
 }

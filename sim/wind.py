@@ -1,8 +1,11 @@
-"""Horizontal wind: a steady vector, a slowly varying component and optional gusts, all seeded.
+"""Wind: a steady horizontal vector, a slowly varying component, optional gusts and optional turbulence, all seeded.
 
 The two random components are first-order Gauss-Markov processes drawn at knots a quarter of their correlation
 time apart and joined by cubic splines, so the wind is twice continuously differentiable and its rate of change
-(which enters the aircraft's acceleration, hence the accelerometer) is exact. There is no vertical wind.
+(which enters the aircraft's acceleration, hence the accelerometer) is exact. :func:`wind_ned` is horizontal; the
+optional Dryden turbulence and discrete gusts (:mod:`sim.turbulence`, three-dimensional, in the flight-path axes) are
+drawn by :func:`sim.kinematics.fly` after it, because they depend on the airspeed, height and heading, and they move
+the aircraft through :mod:`sim.response` (docs/evaluation.md, 'Turbulence (Dryden and discrete gusts)').
 """
 
 from __future__ import annotations
@@ -13,6 +16,7 @@ import numpy as np
 from scipy.interpolate import CubicSpline
 
 from sim.processes import gauss_markov
+from sim.turbulence import TurbulenceConfig
 
 #: Knot spacing of a random wind component as a fraction of its correlation time.
 KNOTS_PER_TAU = 4.0
@@ -36,6 +40,8 @@ class WindConfig:
         Standard deviation of the gust (turbulence) component, per horizontal axis [m/s]; 0 disables it.
     gust_tau_s : float
         Correlation time of the gusts [s] (length scale / airspeed).
+    turbulence : TurbulenceConfig, optional
+        Dryden turbulence and discrete gusts that move the aircraft; None (default) draws nothing.
     """
 
     speed_m_s: float = 2.5
@@ -44,6 +50,7 @@ class WindConfig:
     slow_tau_s: float = 300.0
     gust_sigma_m_s: float = 0.0
     gust_tau_s: float = 4.0
+    turbulence: TurbulenceConfig | None = None
 
     @property
     def steady_ned_m_s(self) -> np.ndarray:

@@ -7,26 +7,36 @@ import pytest
 
 from app.cli import EXIT_BAD_INPUT, main
 from calib.export import read_calibration
-from calib.px4_params import read_px4_params
+from calib.parameter_export import export_figures, read_ardupilot_parm, read_px4_params
 
 LOG = "sample_px4_events.ulg"
 START_S = 1710773350.0  # this SITL log's clock is unix time; it stands still for its first ~18.7 s
 
 
 def test_calibrate_writes_calib_json_and_params(real_logs_dir, tmp_path, capsys):
-    out, params = tmp_path / "CALIB.json", tmp_path / "ekf2.params"
-    assert main(["calibrate", str(real_logs_dir / LOG), "-o", str(out), "--px4-params", str(params)]) == 0
+    out, params, parm = tmp_path / "CALIB.json", tmp_path / "ekf2.params", tmp_path / "ekf3.parm"
+    assert main(["calibrate", str(real_logs_dir / LOG), "-o", str(out), "--px4-params", str(params),
+                 "--ardupilot-parm", str(parm)]) == 0
     printed = capsys.readouterr().out
-    assert "Table 4" in printed and "stationary" in printed and f"wrote {out}" in printed
+    assert "Table 4" in printed and "stationary" in printed
+    assert f"wrote {out}" in printed and f"wrote {params}" in printed and f"wrote {parm}" in printed
     cal = read_calibration(out)
     assert cal.source == LOG and cal.sensors["gyroscope"].segment.kind == "stationary"
     # Local gravity from the log's GPS (47.4 deg N, 488 m) instead of the standard 9.80665.
     assert cal.stationary_bias.gravity.value_m_s2 == pytest.approx(9.8069, abs=1e-3)
     back = read_px4_params(params)
-    gyro = cal.sensors["gyroscope"]
-    # The log has no EKF2_PREDICT_US: PX4's default 10 ms, so the ~250 Hz per-sample variance scales by 100 / 250.
-    assert back["EKF2_GYR_NOISE"].value == pytest.approx(np.sqrt(np.mean(np.square(gyro.sigma)) * 100 / gyro.fir.fs_hz))
-    assert "gyroscope sigma" in back["EKF2_GYR_NOISE"].comment
+    density = export_figures(cal)["gyro_noise_density"]
+    # The log has no EKF2_PREDICT_US: PX4's default 10 ms step; EKF3 predicts every 12 ms (EKF_TARGET_DT).
+    assert back["EKF2_GYR_NOISE"].value == pytest.approx(density.value / np.sqrt(0.01))
+    assert f"gyro_noise_density = {density.value:.4g} rad/s/sqrt(Hz) ({density.source})" in \
+        back["EKF2_GYR_NOISE"].comments[0]
+    ekf3 = read_ardupilot_parm(parm)
+    assert ekf3["EK3_GYRO_P_NSE"].value == pytest.approx(density.value / np.sqrt(0.012))
+    # SITL's magnetometer noise (about 0.004 gauss) is below EK3_MAG_M_NSE's documented minimum of 0.01 gauss.
+    mag_gauss = back["EKF2_MAG_NOISE"].value
+    assert mag_gauss < 0.01 and ekf3["EK3_MAG_M_NSE"].value == 0.01
+    assert ekf3["EK3_MAG_M_NSE"].comments[-1].startswith(f"clamped from {mag_gauss:.4g} to 0.01 gauss")
+    assert "EK3_POSNE_M_NSE: not written" in parm.read_text()
 
 
 def test_user_window_filter_and_tau(real_logs_dir, tmp_path):

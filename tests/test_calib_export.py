@@ -1,4 +1,4 @@
-"""CALIB.json round trip and validation; PX4 .params values, semantics and parse-back."""
+"""CALIB.json (schema 2) round trip and validation, schema 1 still read."""
 
 from __future__ import annotations
 
@@ -7,15 +7,21 @@ import dataclasses
 import json
 import math
 
-import numpy as np
 import pytest
 from test_calib_synthetic import synthetic_log
 
-from calib.allan import AllanFigures
 from calib.bias import InflightBias
 from calib.calibration import calibrate, with_tau
 from calib.export import SCHEMA, calibration_from_dict, calibration_to_dict, read_calibration, write_calibration
-from calib.px4_params import PARAM_TYPE_REAL32, Px4Param, px4_parameters, read_px4_params, write_px4_params
+from calib.figures import (
+    SOURCE_ALLAN,
+    SOURCE_DEFAULT,
+    SOURCE_STILL,
+    SOURCE_TUNED,
+    ChannelConsistency,
+    Figure,
+    TuneResult,
+)
 from calib.tau import TauSelection
 from ingest.errors import InputError
 
@@ -27,7 +33,23 @@ def cal():
     tau = TauSelection(tau=2.0, method="likelihood", log10_tau_grid=(-1.0, 0.5, 2.0),
                        neg_log_likelihood=(3.0, 1.0, 2.0), mean_nis=(5.0, 1.0, 0.1), n_innovations=100,
                        nis_at_tau=1.02, nis_band=(0.75, 1.3), lag1_autocorrelation=0.1)
-    return with_tau(calibrate(synthetic_log(30.0, seed=4), inflight_bias=inflight), tau)
+    figures = {
+        "gyro_noise_density": Figure("gyro_noise_density", 2e-3, SOURCE_ALLAN, axes=(1e-3, 2e-3, 2.6e-3),
+                                     note="Allan white-noise density"),
+        "mag_noise": Figure("mag_noise", 0.01, SOURCE_STILL, axes=(0.01, 0.01, 0.01)),
+        "wind_walk": Figure("wind_walk", 0.1, SOURCE_DEFAULT),
+    }
+    tuned = {**figures, "wind_walk": Figure("wind_walk", 0.35, SOURCE_TUNED, note="bounded search"),
+             "gps_vel_noise_scale": Figure("gps_vel_noise_scale", 1.8, SOURCE_TUNED)}
+    tuning = TuneResult(
+        estimator="full_state_indirect", figures=tuned, start={"wind_walk": 0.1, "gps_vel_noise_scale": 1.0},
+        bounds={"wind_walk": (0.01, 2.0), "gps_vel_noise_scale": (0.3, 3.0)},
+        log_likelihood_trace=(-1200.0, -1150.5, -1149.0), n_replays=17,
+        nis_before=(ChannelConsistency("gps.vn", 150, 2.4, (0.78, 1.24)),),
+        nis_after=(ChannelConsistency("gps.vn", 150, 1.05, (0.78, 1.24)),), wall_s=12.5,
+        notes=("wind_walk at its start bound",))
+    cal = with_tau(calibrate(synthetic_log(30.0, seed=4), inflight_bias=inflight), tau)
+    return dataclasses.replace(cal, figures=figures, tuning={"full_state_indirect": tuning})
 
 
 def test_json_round_trip(cal, tmp_path):
@@ -42,6 +64,10 @@ def test_json_round_trip(cal, tmp_path):
     assert back.tau == cal.tau
     assert back.stationary_bias == cal.stationary_bias
     assert (back.source, back.sha256, back.vehicle_type, back.noise) == (cal.source, cal.sha256, 1, "sigma")
+    assert back.figures == cal.figures and back.tuning == cal.tuning
+    assert data["figures"]["gyro_noise_density"] == {"value": 2e-3, "unit": "rad/s/sqrt(Hz)", "source": SOURCE_ALLAN,
+                                                     "axes": [1e-3, 2e-3, 2.6e-3], "note": "Allan white-noise density"}
+    assert data["tuning"]["full_state_indirect"]["bounds"]["wind_walk"] == [0.01, 2.0]
     # Allan figures hold NaN (no random walk), which never compares equal: compare the JSON forms.
     assert calibration_to_dict(back) == calibration_to_dict(cal)
     assert math.isnan(back.allan["gyroscope"][0].rate_random_walk)
@@ -66,7 +92,9 @@ def _without(data, path):
 
 @pytest.mark.parametrize("path", ["schema", "sensors", "sensors.gyroscope.sigma", "sensors.gyroscope.filter.numtaps",
                                   "tau.value", "stationary_bias", "stationary_bias.gyro_bias_rad_s", "r",
-                                  "allan", "source.sha256"])
+                                  "allan", "source.sha256", "figures", "figures.mag_noise.unit",
+                                  "tuning.full_state_indirect.n_replays",
+                                  "tuning.full_state_indirect.figures.wind_walk.source"])
 def test_missing_keys_fail_naming_the_key(cal, path):
     with pytest.raises(InputError) as err:
         calibration_from_dict(_without(calibration_to_dict(cal), path))
@@ -74,7 +102,7 @@ def test_missing_keys_fail_naming_the_key(cal, path):
     assert "missing key" in str(err.value)
 
 
-@pytest.mark.parametrize(("schema", "message"), [("solarnav.calibration/2", "version '2' is not supported"),
+@pytest.mark.parametrize(("schema", "message"), [("solarnav.calibration/3", "version '3' is not supported"),
                                                  ("other.tool/1", "not a solarnav calibration")])
 def test_unknown_schema_fails_clearly(cal, tmp_path, schema, message):
     data = calibration_to_dict(cal)
@@ -94,6 +122,16 @@ def test_unknown_schema_fails_clearly(cal, tmp_path, schema, message):
     (lambda d: d["tau"].update(value=0), "tau.value"),
     (lambda d: d.update(noise_choice="max"), "noise_choice"),
     (lambda d: d["sensors"].update(lidar=d["sensors"]["barometer"]), "sensors"),
+    (lambda d: d["figures"]["mag_noise"].update(unit="mgauss"), "figures.mag_noise.unit"),
+    (lambda d: d["figures"]["mag_noise"].update(source="guess"), "figures.mag_noise.source"),
+    (lambda d: d["figures"].update(lidar_noise=d["figures"]["mag_noise"]), "figures.lidar_noise"),
+    (lambda d: d["tuning"]["full_state_indirect"]["figures"]["wind_walk"].update(unit="m/s"),
+     "tuning.full_state_indirect.figures.wind_walk.unit"),
+    (lambda d: d["tuning"]["full_state_indirect"]["start"].update(gust=1.0), "tuning.full_state_indirect.start.gust"),
+    (lambda d: d["tuning"]["full_state_indirect"]["bounds"].update(wind_walk=[0.1]),
+     "tuning.full_state_indirect.bounds.wind_walk"),
+    (lambda d: d["tuning"]["full_state_indirect"]["nis_after"][0].update(band=[1.0]),
+     "tuning.full_state_indirect.nis_after[0].band"),
 ])
 def test_wrong_values_fail_naming_the_key(cal, edit, field):
     data = calibration_to_dict(cal)
@@ -101,6 +139,34 @@ def test_wrong_values_fail_naming_the_key(cal, edit, field):
     with pytest.raises(InputError) as err:
         calibration_from_dict(data)
     assert err.value.field == field
+
+
+@pytest.mark.parametrize(("edit", "message"), [
+    (lambda d: d["figures"]["mag_noise"].update(unit="mgauss"), "figure 'mag_noise' is in 'gauss', got 'mgauss'"),
+    (lambda d: d["figures"]["mag_noise"].update(source="guess"), "unknown source 'guess'"),
+    (lambda d: d["figures"].update(lidar_noise=d["figures"]["mag_noise"]), "unknown figure 'lidar_noise'"),
+])
+def test_bad_figures_fail_naming_the_key_in_the_message(cal, edit, message):
+    data = calibration_to_dict(cal)
+    edit(data)
+    with pytest.raises(InputError, match=message) as err:
+        calibration_from_dict(data, source="CALIB.json")
+    assert str(err.value).startswith(f"CALIB.json: {err.value.field}: ")  # the key is in the one-line message
+
+
+def test_schema_1_file_still_loads_without_figures(cal, tmp_path):
+    data = calibration_to_dict(cal)
+    del data["figures"], data["tuning"]
+    data["schema"] = "solarnav.calibration/1"
+    path = tmp_path / "CALIB.json"
+    path.write_text(json.dumps(data))
+    back = read_calibration(path)
+    assert back.figures == {} and back.tuning == {}
+    assert back.sensors == cal.sensors and back.r == cal.r and back.tau == cal.tau
+    # Written again, it is schema 2 (with the empty sections).
+    again = calibration_to_dict(back)
+    assert again["schema"] == SCHEMA == "solarnav.calibration/2"
+    assert (again["figures"], again["tuning"]) == ({}, {})
 
 
 def test_unreadable_or_invalid_json_fails(tmp_path):
@@ -113,56 +179,3 @@ def test_unreadable_or_invalid_json_fails(tmp_path):
     bad.write_text("[]")
     with pytest.raises(InputError, match="expected an object"):
         read_calibration(bad)
-
-
-def test_px4_parameters_follow_ekf2_unit_semantics(cal):
-    params = {p.name: p for p in px4_parameters(cal, predict_period_s=0.01)}
-    assert set(params) == {"EKF2_ACC_NOISE", "EKF2_GYR_NOISE", "EKF2_MAG_NOISE", "EKF2_BARO_NOISE",
-                           "EKF2_EAS_NOISE", "EKF2_GPS_P_NOISE", "EKF2_GPS_V_NOISE"}  # no random walk: no B_NOISE
-    gyro = np.array(cal.sensors["gyroscope"].sigma)
-    # 250 Hz per-sample std averaged to EKF2's 100 Hz: variance scales by 100 / 250.
-    assert params["EKF2_GYR_NOISE"].value == pytest.approx(np.sqrt(np.mean(gyro**2) * 100 / 250))
-    gps = np.array(cal.sensors["gps_position"].sigma[:2])
-    assert params["EKF2_GPS_P_NOISE"].value == pytest.approx(np.sqrt(np.mean(gps**2)))  # horizontal only
-    assert params["EKF2_BARO_NOISE"].value == pytest.approx(cal.sensors["barometer"].sigma[0])
-    # The synthetic airspeed noise (0.2 m/s) is below PX4's minimum EKF2_EAS_NOISE of 0.5 m/s.
-    assert params["EKF2_EAS_NOISE"].value == 0.5 and "clamped" in params["EKF2_EAS_NOISE"].comment
-    assert all(p.type == PARAM_TYPE_REAL32 and p.comment for p in params.values())
-    assert "gyroscope sigma" in params["EKF2_GYR_NOISE"].comment
-
-
-def test_bias_process_noise_from_allan_rate_random_walk(cal):
-    walk = AllanFigures(white_density=1e-4, bias_instability=1e-4, bias_instability_tau_s=10.0, floor_reached=True,
-                        rate_random_walk=2e-5, rate_hz=250.0)
-    with_walk = dataclasses.replace(cal, allan={**cal.allan, "gyroscope": (walk,) * 3})
-    params = {p.name: p for p in px4_parameters(with_walk, predict_period_s=0.004)}
-    # Per step EKF2 adds (noise dt)^2, a random walk K adds K^2 dt: noise = K / sqrt(dt).
-    assert params["EKF2_GYR_B_NOISE"].value == pytest.approx(2e-5 / np.sqrt(0.004))
-    assert "EKF2_ACC_B_NOISE" not in params
-
-
-def test_params_file_parses_back(cal, tmp_path):
-    params = [*px4_parameters(cal), Px4Param(name="EKF2_GPS_DELAY", value=110.0, type=9),
-              Px4Param(name="SYS_AUTOSTART", value=4001, type=6, comment="airframe")]
-    path = write_px4_params(params, tmp_path / "out.params", header="from synthetic.ulg\nsecond line")
-    text = path.read_text()
-    assert text.startswith("# Onboard parameters for Vehicle 1\n#\n# from synthetic.ulg\n# second line\n")
-    assert "1\t1\tSYS_AUTOSTART\t4001\t6\n" in text
-    back = read_px4_params(path)
-    assert list(back) == [p.name for p in params]
-    for p in params:
-        assert back[p.name].value == p.value  # .17g round-trips float64 exactly
-        assert (back[p.name].type, back[p.name].comment) == (p.type, p.comment)
-
-
-def test_malformed_params_file_fails_with_the_line(tmp_path):
-    path = tmp_path / "bad.params"
-    path.write_text("# header\n1\t1\tEKF2_ACC_NOISE\t0.3\t9\n1\t1\tEKF2_GYR_NOISE\tabc\t9\n")
-    with pytest.raises(InputError, match="line 3"):
-        read_px4_params(path)
-    path.write_text("1 1 EKF2_ACC_NOISE 0.3 9\n")  # spaces, not tabs
-    with pytest.raises(InputError, match="5 tab-separated fields"):
-        read_px4_params(path)
-    path.write_text("1\t1\tEKF2_ACC_NOISE\t0.3\t42\n")
-    with pytest.raises(InputError, match="MAV_PARAM_TYPE"):
-        read_px4_params(path)

@@ -1,25 +1,43 @@
 """``solarnav calibrate LOG [--start-s A --end-s B | --segment auto] [--cutoff-hz F] [--numtaps N] [--tau X|auto]
-[--tau-method likelihood|nis] [--noise sigma|eta] -o CALIB.json [--px4-params OUT.params]``: sensor noise, biases,
-Allan figures, R and tau from a flight log, written as CALIB.json (and optionally as PX4 EKF2 parameters).
+[--tau-method likelihood|nis] [--noise sigma|eta] [--tune [--tune-budget N] [--estimators a,b,c]] -o CALIB.json
+[--px4-params OUT.params] [--ardupilot-parm OUT.parm]``: sensor noise, biases, Allan figures, R and tau from a flight
+log, the filter figures they give (each with its source), optionally the noise identified per estimator from the
+flight's own innovations, written as CALIB.json (and optionally as PX4 EKF2 and ArduPilot EKF3 noise parameters).
 
 ``--tau auto`` replays the three-stage estimator (whose stage 1 fuses the accelerometer) once per candidate tau
 with the calibrated noise, and keeps the tau that maximises the likelihood of its body-y accelerometer innovations
-(or brings their mean NIS to 1)."""
+(or brings their mean NIS to 1). With GPS, the error-state filter is replayed once with the calibrated noise and its
+final gyro and accelerometer bias states become the in-flight bias (the three-stage estimator, which has no bias
+states, gets them removed from its inputs). ``--tune`` maximises each estimator's innovation log-likelihood over its
+noise figures (docs/calibration.md, 'Noise identification')."""
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 
 import numpy as np
 
 from calib.bias import local_gravity
 from calib.calibration import IMU_SENSORS, NOISE_CHOICES, Calibration, FirSettings, calibrate, with_tau
 from calib.export import write_calibration
-from calib.px4_params import DEFAULT_PREDICT_PERIOD_S, px4_parameters, write_px4_params
+from calib.filter_figures import calibration_figures
+from calib.parameter_export import (
+    DEFAULT_PREDICT_PERIOD_S,
+    EKF3_TARGET_DT_S,
+    ardupilot_parameters,
+    export_figures,
+    px4_parameters,
+    unwritten_notes,
+    write_ardupilot_parm,
+    write_px4_params,
+)
 from calib.segments import user_segment
 from calib.tables import table4
 from calib.tau import DEFAULT_TAU, TAU_METHODS, TauSelection, choose_tau, user_tau
-from estimators.calibration_replay import tau_replay
+from estimators.api import DEFAULT_ESTIMATORS, parse_estimator_names
+from estimators.calibration_replay import inflight_bias, tau_replay
+from estimators.tuning import DEFAULT_BUDGET, tune_calibration
 from ingest.errors import InputError
 from ingest.ulog_reader import load_flight_log
 
@@ -44,8 +62,16 @@ def add_parser(subparsers) -> None:
                         help="criterion of --tau auto: innovation likelihood (default) or mean NIS = 1")
     parser.add_argument("--noise", choices=NOISE_CHOICES, default="sigma",
                         help="figure R is built from: residual sigma (default) or the paper's eq 50 eta")
+    parser.add_argument("--tune", action="store_true",
+                        help="identify each estimator's noise from the flight's innovations (maximum likelihood)")
+    parser.add_argument("--tune-budget", type=int, default=DEFAULT_BUDGET, metavar="N",
+                        help=f"filter replays per estimator for --tune (default {DEFAULT_BUDGET})")
+    parser.add_argument("--estimators", default=",".join(DEFAULT_ESTIMATORS), metavar="A,B,C",
+                        help="estimators --tune identifies noise for (default: all)")
     parser.add_argument("-o", "--output", required=True, metavar="CALIB.json", help="calibration file to write")
     parser.add_argument("--px4-params", metavar="OUT.params", help="also write EKF2 noise parameters (QGC format)")
+    parser.add_argument("--ardupilot-parm", metavar="OUT.parm",
+                        help="also write ArduPilot EKF3 noise parameters (.parm, 'NAME VALUE' lines)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -58,20 +84,50 @@ def run(args: argparse.Namespace) -> int:
                     gravity=local_gravity(log))
     if tau is None:
         cal = with_tau(cal, choose_tau(tau_replay(log, cal), method=args.tau_method))
+    if cal.inflight_bias is None:
+        cal = dataclasses.replace(cal, inflight_bias=inflight_bias(log, cal))
+    cal = dataclasses.replace(cal, figures=calibration_figures(cal))
+    if args.tune:
+        if args.tune_budget < 2:
+            raise InputError(f"must be at least 2 replays, got {args.tune_budget}", field="--tune-budget")
+        cal = tune_calibration(log, cal, parse_estimator_names(args.estimators), budget=args.tune_budget)
     try:
         written = [write_calibration(cal, args.output)]
-        if args.px4_params:
-            predict_us = log.meta.parameters.get("EKF2_PREDICT_US")
-            period_s = predict_us / 1e6 if predict_us else DEFAULT_PREDICT_PERIOD_S
-            header = (f"EKF2 noise parameters calibrated by solarnav from {cal.source} (sha256 {cal.sha256})\n"
-                      f"EKF2 prediction period {period_s * 1e3:g} ms")
-            written.append(write_px4_params(px4_parameters(cal, period_s), args.px4_params, header=header))
+        written += _write_autopilot_parameters(cal, log.meta.parameters, args)
     except OSError as exc:
         raise InputError(f"cannot write the output ({exc.strerror})", source=exc.filename) from exc
     print(format_summary(cal))
+    if cal.tuning:
+        print(format_tuning(cal))
     for path in written:
         print(f"wrote {path}")
     return 0
+
+
+def _write_autopilot_parameters(cal: Calibration, log_parameters: dict, args: argparse.Namespace) -> list:
+    """Write the ``--px4-params`` / ``--ardupilot-parm`` files requested; returns their paths."""
+    if not (args.px4_params or args.ardupilot_parm):
+        return []
+    figures = export_figures(cal)
+    imu_rate_hz = cal.sensors["gyroscope"].fir.fs_hz if "gyroscope" in cal.sensors else None
+    origin = f"calibrated by solarnav from {cal.source} (sha256 {cal.sha256})"
+    written = []
+    if args.px4_params:
+        predict_us = log_parameters.get("EKF2_PREDICT_US")
+        period_s = predict_us / 1e6 if predict_us else DEFAULT_PREDICT_PERIOD_S
+        header = "\n".join([f"EKF2 noise parameters {origin}", f"EKF2 prediction period {period_s * 1e3:g} ms",
+                             *unwritten_notes(figures, "px4")])
+        written.append(write_px4_params(px4_parameters(figures, period_s, imu_rate_hz), args.px4_params,
+                                        header=header))
+    if args.ardupilot_parm:
+        # A PX4 log says nothing of an ArduPilot loop rate: EKF3's target step (12 ms; longer below 83 Hz loops).
+        header = "\n".join([f"EKF3 noise parameters {origin}",
+                             f"EKF3 prediction period {EKF3_TARGET_DT_S * 1e3:g} ms (EKF_TARGET_DT; a loop slower "
+                             "than 83 Hz predicts at its own period: scale the per-step values by sqrt(12 ms / "
+                             "period))", *unwritten_notes(figures, "ardupilot")])
+        written.append(write_ardupilot_parm(ardupilot_parameters(figures, EKF3_TARGET_DT_S, imu_rate_hz),
+                                            args.ardupilot_parm, header=header))
+    return written
 
 
 def format_summary(cal: Calibration) -> str:
@@ -103,6 +159,30 @@ def format_summary(cal: Calibration) -> str:
     notes = list(cal.warnings) + [f"{name}: {w}" for name, s in cal.sensors.items() for w in s.warnings]
     if notes:
         lines += ["", "warnings:", *(f"  - {note}" for note in notes)]
+    return "\n".join(lines)
+
+
+def format_tuning(cal: Calibration) -> str:
+    """Per tuned estimator: likelihood start -> end, replays, wall time, each figure start -> tuned, and the mean
+    NIS per channel before and after with its 95 % band."""
+    lines = ["", "noise identified from the flight's innovations (--tune):"]
+    for name, result in cal.tuning.items():
+        trace = result.log_likelihood_trace
+        lines.append(f"  {name}: log-likelihood {trace[0]:.6g} -> {trace[-1]:.6g} in {result.n_replays} replays, "
+                     f"{result.wall_s:.1f} s")
+        for figure, start in result.start.items():
+            tuned = result.figures[figure]
+            low, high = result.bounds[figure]
+            lines.append(f"    {figure:<22} {start:10.4g} -> {tuned.value:10.4g} {tuned.unit:<16} "
+                         f"(bounds {low:g}..{high:g})")
+        after = {c.channel: c for c in result.nis_after}
+        lines.append("    mean NIS per channel before -> after (95 % chi-square band):")
+        for before in result.nis_before:
+            now = after.get(before.channel)
+            if now is not None:
+                lines.append(f"      {before.channel:<16} {before.mean_nis:8.3f} -> {now.mean_nis:8.3f} "
+                             f"({now.band[0]:.3f}..{now.band[1]:.3f}, {now.n_updates} updates)")
+        lines += [f"    note: {note}" for note in result.notes]
     return "\n".join(lines)
 
 

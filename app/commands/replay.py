@@ -5,6 +5,7 @@ re-run the estimators on a log and write their states (one row per estimator per
 from __future__ import annotations
 
 import argparse
+import math
 from pathlib import Path
 
 import pandas as pd
@@ -13,6 +14,7 @@ import pyarrow.csv
 
 from estimators.api import DEFAULT_ESTIMATORS, ESTIMATORS, ReplayResult, parse_estimator_names, run_estimators
 from estimators.config import EstimatorConfig, config_from_calibration
+from estimators.consistency import turbulence_intensity_m_s
 from estimators.inputs.records import HEADING_SOURCES
 from ingest.errors import InputError
 from ingest.files import atomic_write
@@ -49,16 +51,18 @@ def run(args: argparse.Namespace) -> int:
         outputs.append(_checked_path(args.diagnostics, "--diagnostics"))
     if args.device is not None and args.sun is None:
         raise InputError("--device describes the sun-device log: give --sun too")
-    config = EstimatorConfig()
+    config, configs = EstimatorConfig(), None
     if args.calib is not None:
         from calib.export import read_calibration  # deferred: the calibration stack is slow to import
 
-        config = config_from_calibration(read_calibration(args.calib), config)
+        calibration = read_calibration(args.calib)
+        configs = {name: config_from_calibration(calibration, estimator=name) for name in names}
     log = load_flight_log(args.log)
     if args.sun is not None:
         device = load_sun_device(args.device) if args.device is not None else None
         log = with_sun(log, args.sun, device=device)
-    result = run_estimators(log, estimators=names, config=config, heading=args.heading, rate_hz=args.rate_hz)
+    result = run_estimators(log, estimators=names, config=config, configs=configs, heading=args.heading,
+                            rate_hz=args.rate_hz)
     write_table(result.states, outputs[0])
     if args.diagnostics is not None:
         write_table(result.diagnostics, outputs[1])
@@ -93,13 +97,20 @@ def write_table(frame: pd.DataFrame, path: Path) -> Path:
 
 
 def format_summary(result: ReplayResult, outputs: list[Path]) -> str:
-    """One line per estimator (epochs, sensors used, resets, kernel time) and the files written."""
+    """One line per estimator (epochs, sensors used, resets, kernel time, turbulence intensity), its degradations,
+    the calibrated figures it used or ignored, its warnings (inconsistent channels among them) and the files
+    written."""
     lines = []
     for name, report in result.reports.items():
-        rows = int((result.states["estimator"] == name).sum())
+        states = result.states[result.states["estimator"] == name]
         skipped = ", ".join(f"{k} ({v})" for k, v in report.skipped.items()) or "none"
-        lines.append(f"{name}: {rows} epochs, used {', '.join(report.used) or 'none'}; skipped {skipped}; "
-                     f"{report.resets} resets; {report.timings_s.get('kernel', float('nan')):.2f} s")
+        turbulence = turbulence_intensity_m_s(states)
+        lines.append(f"{name}: {len(states)} epochs, used {', '.join(report.used) or 'none'}; skipped {skipped}; "
+                     f"{report.resets} resets; {report.timings_s.get('kernel', float('nan')):.2f} s"
+                     + (f"; turbulence intensity {turbulence:.2f} m/s" if math.isfinite(turbulence) else ""))
         lines += [f"  degraded: {d}" for d in report.degradations]
+        lines += [f"  calibration: {item['figure']} [{item['source']}]: {item['use']}"
+                  for item in report.details.get("calibration", [])]
+        lines += [f"  WARNING: {w}" for w in report.warnings]
     lines += [f"wrote {p}" for p in outputs]
     return "\n".join(lines)

@@ -1,12 +1,16 @@
 """Calibration: pick the segment, set the FIR filters, and read the noise figures (paper Table 4, eq 50), the R
 matrices (eq 51) with tau (eq 52), the Allan deviations, and download CALIB.json / the PX4 .params file."""
 
+import hashlib
+import json
+
 import numpy as np
 import pandas as pd
 import streamlit as st
 
 from app import adapters, figures, session, tables
 from calib.calibration import SENSORS
+from calib.export import calibration_to_dict
 from calib.fir import frequency_response
 from calib.tables import noise_table, r_tables, table4
 from calib.tau import TAU_METHODS
@@ -126,6 +130,17 @@ def results() -> None:
 
 st.subheader("Results")
 results()
+
+# ------------------------------------------------------------------ noise identification
+st.subheader("Noise identified from the flight")
+st.caption("Per estimator, the noise figures that maximise the likelihood of its own innovations, starting from "
+           "the calibrated ones (`solarnav calibrate --tune`; docs/calibration.md, 'Noise identification'). "
+           "Saved calibrations carry them; runs with such a calibration use each estimator's own figures.")
+if st.toggle("Identify noise (about a minute for 15 minutes of flight)", key="calib_tune"):
+    digest = hashlib.sha256(json.dumps(calibration_to_dict(current), sort_keys=True).encode()).hexdigest()
+    current = adapters.tuned_calibration(root, sha256, current, digest)
+    st.dataframe(tables.tuning_table(current), hide_index=True, key="calib_tuning_table")
+    st.dataframe(tables.tuning_nis_table(current), hide_index=True, key="calib_tuning_nis")
 
 # ------------------------------------------------------------------ export
 st.subheader("Export")

@@ -1,6 +1,7 @@
 """Estimators: run the three EKFs (choice of estimators, heading aid, noise) with progress, and compare them with
 the onboard estimate and the ground truth: states, errors, the RMS table (paper Table 2), innovations and NIS."""
 
+import pandas as pd
 import streamlit as st
 
 from app import adapters, comparison, figures, runs, session, tables
@@ -57,11 +58,18 @@ report = adapters.run_report(root, run_id)
 result = adapters.run_comparison(root, sha256, run_id)
 
 for name, facts in report.items():
+    # inconsistent channels of a calibrated run are never hidden in the collapsed details
+    for warning in facts["warnings"]:
+        if "inconsistent" in warning:
+            st.warning(warning)
     with st.expander(f"{name}: used {', '.join(facts['used']) or 'nothing'}; "
                      f"{facts['timings_s'].get('total', float('nan')):.1f} s"):
         for reason in (*[f"skipped {k}: {v}" for k, v in facts["skipped"].items()], *facts["degradations"],
                        *facts["warnings"]):
             st.warning(reason)
+        if facts["details"].get("calibration"):
+            st.caption("Calibrated figures: source and what this estimator did with each")
+            st.dataframe(pd.DataFrame(facts["details"]["calibration"]), hide_index=True, key=f"calibration_{name}")
         st.json(facts["details"], expanded=False)
 
 st.subheader("RMS errors (paper Table 2 layout)")

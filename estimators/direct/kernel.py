@@ -278,7 +278,7 @@ def _update(x, P, kind, values, variances, t, settings, gps_mon, air_ok, x_err, 
     return air_ok
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)  # the replays of noise identification run in threads
 def run_kernel(imu_gyro, imu_accel, ev_kind, ev_val, ev_var, op, op_dt, op_index, settings, out_f, out_x, out_sx,
                diag_f, diag_i, counters):
     """The full-state direct filter over a whole log (one compiled loop; see the module docstring).

@@ -283,7 +283,7 @@ def _update(x, P, t, kind, values, variances, gyro, settings, w, gps_mon, diag_f
     return accepted
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)  # the replays of noise identification run in threads
 def run_kernel(imu_gyro, imu_accel, ev_kind, ev_imu, ev_val, ev_var, op, op_dt, op_index, settings, out_f, out_sd,
                diag_f, diag_i, counters):
     """The error-state filter over a whole log: one compiled loop over the schedule (see the module docstring).

@@ -159,7 +159,8 @@ def build_replay_inputs(flight_log: FlightLog, config: EstimatorConfig | None = 
         mag_strength = strength
         mag_field, mag_field_source = _earth_field_unit(flight_log, origin, mag, imu, config, warnings)
         values = mag[1] / mag_strength
-        parts.append((mag[0], MAG, values, np.full(values.shape, config.noise.mag_sigma ** 2)))
+        mag_sigma = config.noise.mag_sigma_axes or (config.noise.mag_sigma,) * 3
+        parts.append((mag[0], MAG, values, np.broadcast_to(np.square(mag_sigma), values.shape).copy()))
 
     has_sun, sun_part = False, None
     if heading in ("sun", "mag+sun"):
@@ -383,7 +384,7 @@ def _gps_events(gps: GpsRows, origin: Origin, config: EstimatorConfig):
     sigma_v = np.maximum(noise.gps_hgt_epv_scale * gps.epv_m, noise.gps_hgt_sigma_floor_m)
     pos_var = np.column_stack([sigma_h ** 2, sigma_h ** 2, sigma_v ** 2])
     speed_sigma = np.where(np.isfinite(gps.speed_sigma_m_s), gps.speed_sigma_m_s, noise.gps_vel_sigma_default_m_s)
-    speed_sigma = np.maximum(speed_sigma, noise.gps_vel_sigma_floor_m_s)
+    speed_sigma = np.maximum(speed_sigma, noise.gps_vel_sigma_floor_m_s) * noise.gps_vel_accuracy_scale
     vel_var = np.repeat((speed_sigma ** 2)[:, None], 3, axis=1)
     return [(gps.time_s, GPS_POS, pos, pos_var), (gps.time_s, GPS_VEL, gps.vel_ned, vel_var)]
 

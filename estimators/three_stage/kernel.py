@@ -216,7 +216,7 @@ def _output_row(t, x1, P1, x2, P2, x3, P3, stage3_on, fixed_wing_nav, height, ve
         row[O_VE_STD] = math.sqrt(P3[3, 3])
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)  # the replays of noise identification run in threads
 def run_kernel(op, op_value, op_index, imu_t, imu_gyro, imu_accel, ev_kind, ev_val, ev_var, prm, x1, P1, x2, P2,
                x3, P3, out, diag_f, diag_i, counters):
     """The three stages over a whole log (one compiled loop over the schedule; see the module docstring).

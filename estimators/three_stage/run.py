@@ -123,8 +123,6 @@ class ThreeStageOptions:
     accel_update_rate_hz : float
         Rate of the stage-1 accelerometer updates [Hz]; the specific force is averaged over the interval (paper:
         IMU and estimator at 50 Hz).
-    accel_tau : float
-        Eq 52 penalty factor on the body-y accelerometer variance [-] (1: none; ``calib.tau`` selects it).
     accel_sigma_floor_m_s2, mag_sigma_floor, gps_pos_sigma_floor_m, gps_vel_sigma_floor_m_s : float
         Floors of the measurement noise [m/s^2 at the update rate, field units, m, m/s]: with no bias states the
         three-stage R must cover model error (accelerometer and magnetometer biases, unmodelled accelerations, the
@@ -156,7 +154,6 @@ class ThreeStageOptions:
     """
 
     accel_update_rate_hz: float = 50.0
-    accel_tau: float = 1.0
     accel_sigma_floor_m_s2: float = 0.25
     mag_sigma_floor: float = 0.03
     gps_pos_sigma_floor_m: float = 0.5
@@ -174,7 +171,7 @@ class ThreeStageOptions:
     deviation_rw_deg_sqrt_s: float = 0.02
 
     def __post_init__(self):
-        for name in ("accel_update_rate_hz", "accel_tau", "accel_gate", "airspeed_lpf_s", "baro_lpf_s",
+        for name in ("accel_update_rate_hz", "accel_gate", "airspeed_lpf_s", "baro_lpf_s",
                      "vertical_speed_lpf_s", "gps_acceleration_lpf_s"):
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
@@ -259,9 +256,7 @@ def kernel_setup(inputs: ReplayInputs, config: EstimatorConfig, options: ThreeSt
               "stage3": (stage3_fixed_wing_states(config, options) if fixed_wing_nav
                          else stage3_multicopter_states(config))}
     n3 = len(tables["stage3"])
-    accel_var = np.full(3, max(noise.accel_noise_m_s2_sqrt_hz ** 2 * options.accel_update_rate_hz,
-                               options.accel_sigma_floor_m_s2 ** 2))
-    accel_var[1] *= options.accel_tau
+    accel_var = stage1_accel_variance(config, options)
     variance_floor = np.zeros(len(records.SENSOR_NAMES))
     variance_floor[MAG] = options.mag_sigma_floor ** 2
     variance_floor[GPS_POS] = options.gps_pos_sigma_floor_m ** 2
@@ -272,8 +267,10 @@ def kernel_setup(inputs: ReplayInputs, config: EstimatorConfig, options: ThreeSt
         max_var3[3] = angle_cap
         max_var3[I_DEVIATION:] = angle_cap
     gates = config.gates
+    calibrated = config.calibrated
+    gyro_bias = align.gyro_bias_rad_s if calibrated.gyro_bias_rad_s is None else calibrated.gyro_bias_rad_s
     params = KernelParams(
-        gravity_m_s2=inputs.gravity_m_s2, gyro_bias_rad_s=np.asarray(align.gyro_bias_rad_s, dtype=float),
+        gravity_m_s2=inputs.gravity_m_s2, gyro_bias_rad_s=np.asarray(gyro_bias, dtype=float),
         gyro_psd=np.full(3, noise.gyro_noise_rad_s_sqrt_hz ** 2), accel_psd=noise.accel_noise_m_s2_sqrt_hz ** 2,
         accel_var=accel_var, variance_floor=variance_floor, accel_gate=options.accel_gate,
         manoeuvre_threshold_m_s2=options.manoeuvre_threshold_m_s2,
@@ -306,6 +303,20 @@ def kernel_setup(inputs: ReplayInputs, config: EstimatorConfig, options: ThreeSt
                        x2=np.array([align.yaw_rad]), P2=params.p2_0.copy(), x3=np.zeros(n3),
                        P3=params.p3_0.copy(), params=params, covariance_dt_s=1.0 / config.timing.covariance_rate_hz,
                        accel_update_dt_s=1.0 / options.accel_update_rate_hz, modes=modes)
+
+
+def stage1_accel_variance(config: EstimatorConfig, options: ThreeStageOptions) -> np.ndarray:
+    """Stage-1 accelerometer variance per body axis at the update rate [(m/s^2)^2]: the calibrated per-axis
+    density (eq 51) or the isotropic one, times the update rate, floored by the model error, times eq 52's tau on
+    body y (docs/three_stage.md, 'Stage 1: roll and pitch')."""
+    calibrated = config.calibrated
+    density = (np.asarray(calibrated.accel_axis_density, dtype=float) if calibrated.accel_axis_density is not None
+               else np.full(3, config.noise.accel_noise_m_s2_sqrt_hz))
+    floor = (options.accel_sigma_floor_m_s2 if calibrated.accel_stage1_floor_m_s2 is None
+             else calibrated.accel_stage1_floor_m_s2)
+    variance = np.maximum(density ** 2 * options.accel_update_rate_hz, floor ** 2)
+    variance[1] *= calibrated.accel_tau
+    return variance
 
 
 def vector_gate(gate_sigma: float, n_components: int) -> float:
@@ -364,7 +375,10 @@ def run(flight_log: FlightLog, inputs: ReplayInputs, config: EstimatorConfig, *,
     op, op_value, op_index = build_schedule(imu.time_s, ev.time_s, ev.kind, ev.imu_index, setup.covariance_dt_s,
                                             setup.accel_update_dt_s, fused_kinds=FUSED_KINDS)
     kernel_started = time.perf_counter()
-    run_kernel(op, op_value, op_index, imu.time_s, imu.gyro_rad_s, imu.accel_m_s2, ev.kind, ev.values, ev.variances,
+    accel = imu.accel_m_s2
+    if config.calibrated.accel_bias_m_s2 is not None:  # no bias states: the calibrated bias is removed up front
+        accel = accel - np.asarray(config.calibrated.accel_bias_m_s2, dtype=float)
+    run_kernel(op, op_value, op_index, imu.time_s, imu.gyro_rad_s, accel, ev.kind, ev.values, ev.variances,
                setup.params, x1, P1, x2, P2, x3, P3, out, diag_f, diag_i, counters)
     kernel_s = time.perf_counter() - kernel_started
     o = out[:counters[C_OUTPUTS]]
@@ -392,7 +406,10 @@ def run(flight_log: FlightLog, inputs: ReplayInputs, config: EstimatorConfig, *,
         "stage3_start_s": float(o[navigating, O_TIME][0]) if navigating.any() else None,
         "heading_resets": int(counters[C_HEADING_RESETS]),
         "accel_update_rate_hz": options.accel_update_rate_hz,
-        "accel_tau": options.accel_tau,
+        "accel_tau": config.calibrated.accel_tau,
+        "accel_variance_m2_s4": setup.params.accel_var.tolist(),
+        "accel_bias_removed_m_s2": (None if config.calibrated.accel_bias_m_s2 is None
+                                    else list(config.calibrated.accel_bias_m_s2)),
         **replay_details(inputs),
     }
     unused = {name: "not part of the three-stage estimator" for name in UNUSED_SENSORS if name in plan.used}

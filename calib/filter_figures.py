@@ -1,0 +1,155 @@
+"""The filter figures a calibration yields, each with its source (docs/calibration.md, 'From calibration to filter
+settings').
+
+What each measured number means decides what it may become:
+
+* an in-flight eq 50 residual holds, besides the sensor's noise, real motion above the FIR cutoff, vibration and
+  turbulence: an upper bound of the sensor noise (source :data:`~calib.figures.SOURCE_INFLIGHT_BOUND` for the IMU,
+  :data:`~calib.figures.SOURCE_INFLIGHT` for the measurements, whose model error the estimator layer adds);
+* a still segment's residual and the Allan white-noise density are the sensor's own noise, without vibration;
+* GPS position noise never comes from short-term residuals (its error is correlated over minutes): the filters
+  weight GPS by the receiver's accuracy fields, so no figure is derived here;
+* the Allan rate random walk is the bias walk; the still-segment and in-flight biases are biases.
+
+How the estimators combine these figures with their model error is :func:`estimators.config.config_from_figures`.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from calib.calibration import ACCEL_Y, Calibration
+from calib.figures import (
+    SOURCE_ALLAN,
+    SOURCE_INFLIGHT,
+    SOURCE_INFLIGHT_BIAS,
+    SOURCE_INFLIGHT_BOUND,
+    SOURCE_R,
+    SOURCE_STILL,
+    SOURCE_STILL_BIAS,
+    SOURCE_TAU,
+    Figure,
+)
+
+#: Segment kinds whose residual is the sensor's own noise.
+STILL_KINDS = ("stationary",)
+
+
+def calibration_figures(cal: Calibration) -> dict[str, Figure]:
+    """The filter figures of ``cal``: ``cal.figures`` when it has them (a CALIB.json with a ``figures`` section,
+    hand edits honoured), else derived from the measured figures as the module docstring says."""
+    if cal.figures:
+        return dict(cal.figures)
+    figures: dict[str, Figure] = {}
+    for name, sensor in (("gyro_noise_density", "gyroscope"), ("accel_noise_density", "accelerometer")):
+        figure = _imu_density(cal, name, sensor)
+        if figure is not None:
+            figures[name] = figure
+    accel_axes = _accel_axis_density(cal)
+    if accel_axes is not None:
+        figures["accel_axis_noise_density"] = accel_axes
+    for name, sensor in (("gyro_bias_walk", "gyroscope"), ("accel_bias_walk", "accelerometer")):
+        walks = [f.rate_random_walk for f in cal.allan.get(sensor, ()) if math.isfinite(f.rate_random_walk)]
+        if walks:
+            figures[name] = Figure(name, _rms(walks), SOURCE_ALLAN, note=f"Allan rate random walk, RMS of the "
+                                                                        f"{len(walks)} axes with a +1/2 slope")
+    figures.update(_biases(cal))
+    figures["accel_tau"] = Figure("accel_tau", cal.tau.tau, SOURCE_TAU, note=f"chosen by: {cal.tau.method}")
+    for name, sensor in (("baro_noise", "barometer"), ("airspeed_noise", "airspeed")):
+        sigma = _r_sigma(cal, sensor)
+        if sigma is not None:
+            figures[name] = Figure(name, sigma, _measurement_source(cal, sensor), note=SOURCE_R)
+    if "magnetometer" in cal.sensors and "magnetometer" in cal.r:
+        diagonal = np.diag(cal.r_matrix("magnetometer"))
+        if np.all(np.isfinite(diagonal)) and np.all(diagonal > 0):
+            axes = tuple(float(v) for v in np.sqrt(diagonal))
+            figures["mag_noise"] = Figure("mag_noise", _rms(axes), _measurement_source(cal, "magnetometer"),
+                                          axes=axes, note=SOURCE_R)
+            strength = float(np.linalg.norm(cal.sensors["magnetometer"].mean))
+            if strength > 0:
+                figures["mag_field_strength"] = Figure("mag_field_strength", strength,
+                                                       _measurement_source(cal, "magnetometer"),
+                                                       note="|mean field| over the segment")
+    if "gps_velocity" in cal.sensors:
+        sensor = cal.sensors["gps_velocity"]
+        horizontal = [s for s in sensor.sigma[:2] if math.isfinite(s) and s > 0]
+        if horizontal:
+            figures["gps_vel_noise"] = Figure("gps_vel_noise", _rms(horizontal), _measurement_source(cal,
+                                                                                                  "gps_velocity"),
+                                              note="used only when the receiver reports no speed accuracy")
+    return figures
+
+
+def _imu_density(cal: Calibration, name: str, sensor: str) -> Figure | None:
+    """White-noise density of an IMU sensor: Allan (still) > still residual > in-flight residual (upper bound)."""
+    allan = [f.white_density for f in cal.allan.get(sensor, ()) if math.isfinite(f.white_density)]
+    if len(allan) == 3:
+        return Figure(name, _rms(allan), SOURCE_ALLAN, axes=tuple(allan), note="Allan white-noise density")
+    if sensor not in cal.sensors:
+        return None
+    s = cal.sensors[sensor]
+    axes = tuple(sigma / math.sqrt(s.fir.fs_hz) for sigma in s.sigma)
+    if s.segment.kind in STILL_KINDS:
+        return Figure(name, _rms(axes), SOURCE_STILL, axes=axes,
+                      note=f"sigma / sqrt({s.fir.fs_hz:.1f} Hz) over {s.segment.start_s:.1f}..{s.segment.end_s:.1f} s")
+    return Figure(name, _rms(axes), SOURCE_INFLIGHT_BOUND, axes=axes,
+                  note=f"sigma / sqrt({s.fir.fs_hz:.1f} Hz) over the {s.segment.kind} segment "
+                       f"{s.segment.start_s:.1f}..{s.segment.end_s:.1f} s: holds motion above the "
+                       f"{s.fir.cutoff_hz:g} Hz cutoff and vibration")
+
+
+def _accel_axis_density(cal: Calibration) -> Figure | None:
+    """Per-axis accelerometer density from the eq 51 R (hand edits honoured), tau taken out of the y entry."""
+    if "accelerometer" not in cal.r or "accelerometer" not in cal.sensors:
+        return None
+    diagonal = np.diag(cal.r_matrix("accelerometer")).astype(float)
+    if cal.tau.tau > 0:
+        diagonal[ACCEL_Y] /= cal.tau.tau
+    if not (np.all(np.isfinite(diagonal)) and np.all(diagonal > 0)):
+        return None
+    fs_hz = cal.sensors["accelerometer"].fir.fs_hz
+    axes = tuple(float(v) for v in np.sqrt(diagonal / fs_hz))
+    return Figure("accel_axis_noise_density", _rms(axes), _measurement_source(cal, "accelerometer"), axes=axes,
+                  note=f"sqrt(R_ii / {fs_hz:.1f} Hz), tau removed from the y entry ({SOURCE_R})")
+
+
+def _biases(cal: Calibration) -> dict[str, Figure]:
+    """Gyro and accelerometer biases: the in-flight filter estimate where present, else the still segment's."""
+    out = {}
+    flight, still = cal.inflight_bias, cal.stationary_bias
+    if flight is not None:
+        out["gyro_bias"] = Figure("gyro_bias", _rms(flight.gyro_bias_rad_s), SOURCE_INFLIGHT_BIAS,
+                                  axes=tuple(flight.gyro_bias_rad_s),
+                                  note=f"{flight.source} bias states over {flight.window_s[0]:.0f}.."
+                                       f"{flight.window_s[1]:.0f} s")
+        if flight.accel_bias_m_s2 is not None:
+            out["accel_bias"] = Figure("accel_bias", _rms(flight.accel_bias_m_s2), SOURCE_INFLIGHT_BIAS,
+                                       axes=tuple(flight.accel_bias_m_s2), note=f"{flight.source} bias states")
+    if still is not None:
+        if "gyro_bias" not in out:
+            out["gyro_bias"] = Figure("gyro_bias", _rms(still.gyro_bias_rad_s), SOURCE_STILL_BIAS,
+                                      axes=tuple(still.gyro_bias_rad_s), note="mean rate over the still segment")
+        if "accel_bias" not in out and all(math.isfinite(v) for v in still.accel_bias_body_m_s2):
+            out["accel_bias"] = Figure("accel_bias", _rms(still.accel_bias_body_m_s2), SOURCE_STILL_BIAS,
+                                       axes=tuple(still.accel_bias_body_m_s2),
+                                       note="component along gravity only (one orientation); the horizontal "
+                                            "components are not identifiable from it")
+    return out
+
+
+def _measurement_source(cal: Calibration, sensor: str) -> str:
+    return SOURCE_STILL if cal.sensors[sensor].segment.kind in STILL_KINDS else SOURCE_INFLIGHT
+
+
+def _r_sigma(cal: Calibration, sensor: str) -> float | None:
+    if sensor not in cal.r or sensor not in cal.sensors:
+        return None
+    diagonal = [v for v in np.diag(cal.r_matrix(sensor)) if math.isfinite(v) and v > 0]
+    return math.sqrt(sum(diagonal) / len(diagonal)) if diagonal else None
+
+
+def _rms(values) -> float:
+    values = [float(v) for v in values]
+    return math.sqrt(sum(v * v for v in values) / len(values))

@@ -1,0 +1,91 @@
+"""Is a replay to be trusted? Mean NIS per measurement channel against its chi-square band, the innovation
+log-likelihood noise identification maximises, and a turbulence-intensity figure from the wind estimate
+(docs/calibration.md, 'Noise identification' and 'Consistency checks').
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pandas as pd
+from scipy.stats import chi2
+
+from calib.figures import ChannelConsistency
+
+#: Mean NIS outside this range makes a channel inconsistent (a visible warning). The chi-square band of the mean
+#: of n NIS values is far narrower, but innovations are correlated in time (GPS, coloured sensor errors), which
+#: the band ignores; a factor of 3 either side of 1 (5x on the low side) is what a filter-test engineer would
+#: call wrong rather than imperfect.
+NIS_WARNING_RANGE = (0.2, 3.0)
+#: Normalised innovations are clipped at this many sigma in the likelihood (a rejected outlier costs a fixed
+#: amount: one bad sample cannot dominate, and shrinking S until everything is rejected does not pay).
+LIKELIHOOD_CLIP_SIGMA = 5.0
+#: Channels with fewer updates are not judged.
+MIN_UPDATES = 20
+#: Window of the moving mean that separates the mean wind from gusts [s].
+GUST_WINDOW_S = 60.0
+
+
+def log_likelihood(diagnostics: pd.DataFrame) -> float:
+    """Innovation log-likelihood ``-1/2 sum_k [min(nu_k^2 / S_k, c^2) + ln(2 pi S_k)]`` over every scalar update
+    of one estimator's diagnostics (c = :data:`LIKELIHOOD_CLIP_SIGMA`)."""
+    nis = diagnostics["nis"].to_numpy(dtype=float)
+    variance = diagnostics["innovation_var"].to_numpy(dtype=float)
+    good = np.isfinite(nis) & np.isfinite(variance) & (variance > 0)
+    if not good.any():
+        return -math.inf
+    clipped = np.minimum(nis[good], LIKELIHOOD_CLIP_SIGMA ** 2)
+    return float(-0.5 * np.sum(clipped + np.log(2.0 * np.pi * variance[good])))
+
+
+def channel_consistency(diagnostics: pd.DataFrame) -> tuple[ChannelConsistency, ...]:
+    """Mean NIS per ``sensor.component`` channel of one estimator's diagnostics, with the 95 % band of the mean of
+    that many chi-square(1) values."""
+    out = []
+    frame = diagnostics[["sensor", "component", "nis"]]
+    for (sensor, component), group in frame.groupby(["sensor", "component"], observed=True, sort=True):
+        nis = group["nis"].to_numpy(dtype=float)
+        nis = nis[np.isfinite(nis)]
+        if len(nis) == 0:
+            continue
+        n = len(nis)
+        band = (float(chi2.ppf(0.025, n) / n), float(chi2.ppf(0.975, n) / n))
+        out.append(ChannelConsistency(channel=f"{sensor}.{component}", n_updates=n, mean_nis=float(nis.mean()),
+                                      band=band))
+    return tuple(out)
+
+
+def consistency_warnings(estimator: str, channels: tuple[ChannelConsistency, ...]) -> list[str]:
+    """One warning per channel whose mean NIS is outside :data:`NIS_WARNING_RANGE` (channels with fewer than
+    :data:`MIN_UPDATES` updates are not judged)."""
+    low, high = NIS_WARNING_RANGE
+    notes = []
+    for c in channels:
+        if c.n_updates < MIN_UPDATES or low <= c.mean_nis <= high:
+            continue
+        verdict = "innovations larger than the filter expects (noise set too low or a model error)" \
+            if c.mean_nis > high else "innovations smaller than the filter expects (noise set too high)"
+        notes.append(f"{estimator}: channel {c.channel} inconsistent, mean NIS {c.mean_nis:.2f} over "
+                     f"{c.n_updates} updates (expected {low:g}..{high:g}; chi-square 95 % band {c.band[0]:.2f}.."
+                     f"{c.band[1]:.2f}): {verdict}")
+    return notes
+
+
+def turbulence_intensity_m_s(states: pd.DataFrame, *, settle_s: float = 60.0) -> float:
+    """RMS of the estimated gust velocity [m/s]: the horizontal wind estimate minus its centred
+    :data:`GUST_WINDOW_S` moving mean, after ``settle_s`` of convergence; NaN without a wind estimate.
+
+    ``states``: one estimator's rows of the states table (``time_s``, ``wind_n_m_s``, ``wind_e_m_s``).
+    """
+    wind = states[["time_s", "wind_n_m_s", "wind_e_m_s"]].dropna()
+    if len(wind) < 10:
+        return math.nan
+    wind = wind[wind["time_s"] >= wind["time_s"].iloc[0] + settle_s]
+    if len(wind) < 10:
+        return math.nan
+    rate_hz = (len(wind) - 1) / max(float(wind["time_s"].iloc[-1] - wind["time_s"].iloc[0]), 1e-9)
+    window = max(3, round(GUST_WINDOW_S * rate_hz))
+    values = wind[["wind_n_m_s", "wind_e_m_s"]]
+    gust = values - values.rolling(window, center=True, min_periods=1).mean()
+    return float(np.sqrt(np.mean(np.sum(gust.to_numpy() ** 2, axis=1))))
