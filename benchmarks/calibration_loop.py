@@ -24,11 +24,13 @@ import pandas as pd
 
 from calib.bias import local_gravity
 from calib.calibration import calibrate, with_tau
+from calib.filter_figures import calibration_figures
 from calib.tau import choose_tau
-from estimators.api import run_estimators
-from estimators.calibration_replay import tau_replay
+from estimators.api import ESTIMATORS, run_estimators
+from estimators.calibration_replay import inflight_bias, tau_replay
 from estimators.config import config_from_calibration
 from estimators.evaluation import rms_errors
+from estimators.tuning import tune_calibration
 from ingest.ulog_reader import load_flight_log
 from sim.kinematics import Site
 from sim.px4_export import write_outputs
@@ -84,23 +86,18 @@ def evaluate(name: str, scenario, seed: int, *, tune: bool, workdir: Path) -> di
     started = time.perf_counter()
     cal = calibrate(log, gravity=local_gravity(log))
     cal = with_tau(cal, choose_tau(tau_replay(log, cal)))
+    cal = replace(cal, inflight_bias=inflight_bias(log, cal))
+    cal = replace(cal, figures=calibration_figures(cal))
     timings = {"calibrate_s": time.perf_counter() - started}
-    configs = {"default": None, "calib": config_from_calibration(cal)}
+    settings = {"default": None, "calib": {name: config_from_calibration(cal, estimator=name) for name in ESTIMATORS}}
     if tune:
-        from estimators.tuning import tune_calibration
-
         started = time.perf_counter()
         tuned = tune_calibration(log, cal)
         timings["tune_s"] = time.perf_counter() - started
-        configs["tune"] = tuned
+        settings["tune"] = {name: config_from_calibration(tuned, estimator=name) for name in ESTIMATORS}
     tables = {}
-    for setting, config in configs.items():
-        replay = run_estimators(log, config=config) if not isinstance(config, dict) else None
-        if replay is None:  # per-estimator settings
-            frames = [run_estimators(log, estimators=[est], config=cfg).states for est, cfg in config.items()]
-            states = pd.concat(frames, ignore_index=True)
-        else:
-            states = replay.states
+    for setting, configs in settings.items():
+        states = run_estimators(log, configs=configs).states
         tables[setting] = rms_errors(states, log).loc[:, list(METRICS)]
     return {"tables": tables, "timings": timings, "tau": cal.tau.tau}
 

@@ -20,7 +20,7 @@ import math
 
 import numpy as np
 
-from calib.calibration import ACCEL_Y, Calibration
+from calib.calibration import Calibration
 from calib.figures import (
     SOURCE_ALLAN,
     SOURCE_INFLIGHT,
@@ -59,6 +59,10 @@ def calibration_figures(cal: Calibration) -> dict[str, Figure]:
     figures["accel_tau"] = Figure("accel_tau", cal.tau.tau, SOURCE_TAU, note=f"chosen by: {cal.tau.method}")
     for name, sensor in (("baro_noise", "barometer"), ("airspeed_noise", "airspeed")):
         sigma = _r_sigma(cal, sensor)
+        # at rest the airspeed is rectified pressure noise (the speed error scales with 1 / (rho V)): meaningless
+        # for the filters, which fuse airspeed only in flight
+        if sensor == "airspeed" and sensor in cal.sensors and cal.sensors[sensor].segment.kind in STILL_KINDS:
+            continue
         if sigma is not None:
             figures[name] = Figure(name, sigma, _measurement_source(cal, sensor), note=SOURCE_R)
     if "magnetometer" in cal.sensors and "magnetometer" in cal.r:
@@ -101,18 +105,17 @@ def _imu_density(cal: Calibration, name: str, sensor: str) -> Figure | None:
 
 
 def _accel_axis_density(cal: Calibration) -> Figure | None:
-    """Per-axis accelerometer density from the eq 51 R (hand edits honoured), tau taken out of the y entry."""
-    if "accelerometer" not in cal.r or "accelerometer" not in cal.sensors:
+    """Per-axis accelerometer density from the noise figures R is built from (eq 51, the calibration's noise
+    choice): tau is a figure of its own (``accel_tau``), so editing it in CALIB.json changes the stage-1 y weight."""
+    if "accelerometer" not in cal.sensors:
         return None
-    diagonal = np.diag(cal.r_matrix("accelerometer")).astype(float)
-    if cal.tau.tau > 0:
-        diagonal[ACCEL_Y] /= cal.tau.tau
-    if not (np.all(np.isfinite(diagonal)) and np.all(diagonal > 0)):
+    sensor = cal.sensors["accelerometer"]
+    noise = np.asarray(sensor.noise(cal.noise), dtype=float)
+    if not (len(noise) == 3 and np.all(np.isfinite(noise)) and np.all(noise > 0)):
         return None
-    fs_hz = cal.sensors["accelerometer"].fir.fs_hz
-    axes = tuple(float(v) for v in np.sqrt(diagonal / fs_hz))
+    axes = tuple(float(v) for v in noise / np.sqrt(sensor.fir.fs_hz))
     return Figure("accel_axis_noise_density", _rms(axes), _measurement_source(cal, "accelerometer"), axes=axes,
-                  note=f"sqrt(R_ii / {fs_hz:.1f} Hz), tau removed from the y entry ({SOURCE_R})")
+                  note=f"{cal.noise} per axis / sqrt({sensor.fir.fs_hz:.1f} Hz) (eq 51 without tau)")
 
 
 def _biases(cal: Calibration) -> dict[str, Figure]:

@@ -157,11 +157,12 @@ def run_estimators(flight_log: FlightLog, *, estimators: str | Sequence[str] = D
     for name, function in functions.items():
         started = time.perf_counter()
         run_config = configs[name]
-        if run_config not in built:
-            built[run_config] = build_replay_inputs(flight_log, run_config, rate_hz=rate_hz, heading=heading,
-                                                    sun_observations=sun_observations)
+        key = next((k for k, c in built.items() if c[0] == run_config), len(built))
+        if key not in built:
+            built[key] = (run_config, build_replay_inputs(flight_log, run_config, rate_hz=rate_hz, heading=heading,
+                                                          sun_observations=sun_observations))
         prepare_s = time.perf_counter() - started
-        run = function(flight_log, built[run_config], run_config)
+        run = function(flight_log, built[key][1], run_config)
         reports[name] = _checked_report(run, run_config, {"prepare": prepare_s, **run.report.timings_s})
         runs.append(run)
     state_columns = dict.fromkeys(column for run in runs for column in run.states.columns)

@@ -167,7 +167,8 @@ def tune_estimator(log: FlightLog, cal: Calibration, estimator: str, *, budget: 
                                  sun_observations=sun_observations)
     strength = inputs.mag_strength_gauss if math.isfinite(inputs.mag_strength_gauss) else 1.0
     knobs = knobs_for(estimator, inputs.plan)
-    start = {k.figure: start_values(start_config, strength)[k.figure] for k in knobs}
+    values = start_values(start_config, strength)
+    start = {k.figure: values[k.figure] for k in knobs}
     start = {name: min(max(v, k.lower), k.upper) for (name, v), k in zip(start.items(), knobs, strict=True)}
     mag_axes = start_config.noise.mag_sigma_axes or (start_config.noise.mag_sigma,) * 3
 

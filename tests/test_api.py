@@ -91,23 +91,51 @@ def test_registry_and_selection(flight):
 
 
 def test_config_from_calibration_maps_noise():
+    """docs/calibration.md, 'From calibration to filter settings': a measured figure is root-sum-squared with the
+    default (never below it), the magnetometer is normalised by the field strength per axis, tuned figures of the
+    selected estimator are used as they are, and every figure's source and use is recorded."""
     from types import SimpleNamespace
 
-    def sensor(sigma, fs, mean=(0.0, 0.0, 0.0)):
-        return SimpleNamespace(noise=lambda choice: sigma, fir=SimpleNamespace(fs_hz=fs), mean=mean)
+    from calib.figures import SOURCE_ALLAN, SOURCE_INFLIGHT, SOURCE_STILL, SOURCE_TUNED, Figure
 
-    calibration = SimpleNamespace(
-        noise="sigma",
-        sensors={"gyroscope": sensor((0.02, 0.02, 0.02), 250.0), "accelerometer": sensor((0.1, 0.2, 0.2), 100.0),
-                 "magnetometer": sensor((0.005,) * 3, 50.0, mean=(0.3, 0.0, 0.4))},
-        r={"barometer": ((0.25,),), "airspeed": ((0.16,),), "magnetometer": ((1e-4, 0, 0), (0, 1e-4, 0), (0, 0, 1e-4))})
+    default = EstimatorConfig().noise
+    gyro_axes, accel_axes = (5e-5, 6e-5, 7e-5), (0.02, 0.03, 0.04)
+    figures = {
+        "gyro_noise_density": Figure("gyro_noise_density", float(np.sqrt(np.mean(np.square(gyro_axes)))),
+                                     SOURCE_ALLAN, axes=gyro_axes),
+        "accel_noise_density": Figure("accel_noise_density", 0.05, SOURCE_STILL, axes=accel_axes),
+        "baro_noise": Figure("baro_noise", 0.3, SOURCE_STILL),
+        "airspeed_noise": Figure("airspeed_noise", 1.2, SOURCE_INFLIGHT),
+        "mag_noise": Figure("mag_noise", 0.01, SOURCE_STILL, axes=(0.005, 0.01, 0.02)),
+        "mag_field_strength": Figure("mag_field_strength", 0.5, SOURCE_STILL),
+    }
+    tuned = {**figures, "baro_noise": Figure("baro_noise", 0.1, SOURCE_TUNED)}
+    calibration = SimpleNamespace(figures=figures,
+                                  tuning={"full_state_direct": SimpleNamespace(figures=tuned)})
     config = config_from_calibration(calibration)
-    assert config.noise.gyro_noise_rad_s_sqrt_hz == pytest.approx(0.02 / math.sqrt(250.0))
-    assert config.noise.accel_noise_m_s2_sqrt_hz == pytest.approx(math.sqrt((0.01 + 0.04 + 0.04) / 3 / 100.0))
-    assert config.noise.baro_sigma_m == pytest.approx(0.5)
-    assert config.noise.airspeed_sigma_m_s == pytest.approx(0.4)
-    assert config.noise.mag_sigma == pytest.approx(0.01 / 0.5)
-    assert config.noise.gps_vel_sigma_floor_m_s == EstimatorConfig().noise.gps_vel_sigma_floor_m_s
+    noise = config.noise
+    # IMU densities: sqrt(default^2 + measured^2), never below the default
+    assert noise.gyro_noise_rad_s_sqrt_hz == pytest.approx(math.hypot(default.gyro_noise_rad_s_sqrt_hz,
+                                                                      figures["gyro_noise_density"].value))
+    assert noise.accel_noise_m_s2_sqrt_hz == pytest.approx(math.hypot(default.accel_noise_m_s2_sqrt_hz, 0.05))
+    assert noise.gyro_noise_rad_s_sqrt_hz >= default.gyro_noise_rad_s_sqrt_hz
+    # measurements: the setting is the default's model error plus the measured noise
+    assert noise.baro_sigma_m == pytest.approx(math.hypot(default.baro_sigma_m, 0.3))
+    assert noise.baro_sigma_m > default.baro_sigma_m
+    assert noise.airspeed_sigma_m_s == pytest.approx(math.hypot(default.airspeed_sigma_m_s, 1.2))
+    # magnetometer per axis in field units (/ 0.5 gauss), each root-sum-squared with the default
+    np.testing.assert_allclose(noise.mag_sigma_axes, np.hypot(default.mag_sigma, np.array([0.01, 0.02, 0.04])))
+    assert noise.gps_vel_sigma_floor_m_s == default.gps_vel_sigma_floor_m_s
+    provenance = {figure: (source, use) for figure, source, use in config.calibrated.provenance}
+    assert set(provenance) == set(figures)
+    assert provenance["baro_noise"][0] == SOURCE_STILL and "sqrt(default" in provenance["baro_noise"][1]
+    assert provenance["gyro_noise_density"][0] == SOURCE_ALLAN
+    assert "noise.mag_sigma_axes" in provenance["mag_noise"][1]
+    # the estimator's tuned figures are taken as they are; another estimator gets the calibration's figures
+    direct = config_from_calibration(calibration, estimator="full_state_direct")
+    assert direct.noise.baro_sigma_m == 0.1
+    assert {f: s for f, s, _ in direct.calibrated.provenance}["baro_noise"] == SOURCE_TUNED
+    assert config_from_calibration(calibration, estimator="three_stage").noise == noise
     with pytest.raises(InputError, match=r"noise\.baro_sigma_m"):
         EstimatorConfig().with_noise(baro_sigma_m=-1.0)
 

@@ -78,6 +78,8 @@ def run(args: argparse.Namespace) -> int:
     """Calibrate, write the file(s) and print Table 4 with the segments; 0 on success."""
     tau = _tau(args.tau)
     _check_segment_options(args)
+    if args.tune and args.tune_budget < 2:
+        raise InputError(f"must be at least 2 replays, got {args.tune_budget}", field="--tune-budget")
     log = load_flight_log(args.log)
     segment = None if args.start_s is None else user_segment(log, args.start_s, args.end_s)
     cal = calibrate(log, segment=segment, fir=_imu_filter(args), noise=args.noise, tau=tau or DEFAULT_TAU,
@@ -88,8 +90,6 @@ def run(args: argparse.Namespace) -> int:
         cal = dataclasses.replace(cal, inflight_bias=inflight_bias(log, cal))
     cal = dataclasses.replace(cal, figures=calibration_figures(cal))
     if args.tune:
-        if args.tune_budget < 2:
-            raise InputError(f"must be at least 2 replays, got {args.tune_budget}", field="--tune-budget")
         cal = tune_calibration(log, cal, parse_estimator_names(args.estimators), budget=args.tune_budget)
     try:
         written = [write_calibration(cal, args.output)]
