@@ -33,6 +33,9 @@ from calib.figures import (
     Figure,
 )
 
+#: In-flight bias estimates are used only when every axis's posterior std is below these [rad/s, m/s^2].
+MAX_GYRO_BIAS_STD_RAD_S = math.radians(0.05)
+MAX_ACCEL_BIAS_STD_M_S2 = 0.03
 #: Segment kinds whose residual is the sensor's own noise.
 STILL_KINDS = ("stationary",)
 
@@ -122,6 +125,9 @@ def _biases(cal: Calibration) -> dict[str, Figure]:
     """Gyro and accelerometer biases: the in-flight filter estimate where present, else the still segment's."""
     out = {}
     flight, still = cal.inflight_bias, cal.stationary_bias
+    if flight is not None and not (_converged(flight.gyro_bias_std_rad_s, MAX_GYRO_BIAS_STD_RAD_S)
+                                   and _converged(flight.accel_bias_std_m_s2, MAX_ACCEL_BIAS_STD_M_S2)):
+        flight = None  # an estimate that has not converged (short flight, few turns) is no calibration
     if flight is not None:
         out["gyro_bias"] = Figure("gyro_bias", _rms(flight.gyro_bias_rad_s), SOURCE_INFLIGHT_BIAS,
                                   axes=tuple(flight.gyro_bias_rad_s),
@@ -140,6 +146,10 @@ def _biases(cal: Calibration) -> dict[str, Figure]:
                                        note="component along gravity only (one orientation); the horizontal "
                                             "components are not identifiable from it")
     return out
+
+
+def _converged(std, limit: float) -> bool:
+    return std is not None and all(math.isfinite(v) and v <= limit for v in std)
 
 
 def _measurement_source(cal: Calibration, sensor: str) -> str:

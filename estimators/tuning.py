@@ -8,7 +8,8 @@ of the calibration's figures, so the start IS the ``--calib`` replay) and is sea
 1. one covariance-matching step on the measurement figures: each sigma times ``sqrt(mean NIS)`` of its channel
    (clipped to a factor of 5), kept when the likelihood rises;
 2. a coordinate pattern search: each figure up and down by a step (half a decade, then a quarter, then an
-   eighth), kept when the likelihood rises, until the replay budget is spent.
+   eighth), kept when the likelihood rises, until the replay budget is spent. Every candidate must stay
+   consistent: no channel's mean NIS above 3 (or above its start value when that was higher), no more resets.
 
 The likelihood is :func:`estimators.consistency.log_likelihood` (normalised innovations clipped at 5 sigma).
 Each evaluation rebuilds the replay inputs (0.1 s for 15 minutes of flight: measurement variances live in the
@@ -32,7 +33,7 @@ from calib.figures import SOURCE_TUNED, Figure, TuneResult
 from calib.filter_figures import calibration_figures
 from estimators.api import DEFAULT_ESTIMATORS, estimator_function, parse_estimator_names
 from estimators.config import EstimatorConfig, config_from_figures
-from estimators.consistency import channel_consistency, log_likelihood
+from estimators.consistency import MIN_UPDATES, NIS_WARNING_RANGE, channel_consistency, log_likelihood
 from estimators.core.results import EstimatorRun
 from estimators.inputs.build import build_replay_inputs
 from estimators.inputs.records import SensorPlan
@@ -185,6 +186,20 @@ def tune_estimator(log: FlightLog, cal: Calibration, estimator: str, *, budget: 
     best_ll, best_run = replay(start)
     best, trace, spent, notes = dict(start), [best_ll], 1, []
     before = channel_consistency(best_run.diagnostics)
+    limits = {c.channel: max(NIS_WARNING_RANGE[1], c.mean_nis) for c in before}
+    start_resets = best_run.report.resets + best_run.report.gps_resets
+
+    def feasible(run) -> bool:
+        """No channel more inconsistent than the warning limit (or than at the start) and no more resets: the
+        clipped likelihood alone would let a diverging channel pay only a fixed price per update."""
+        if run.report.resets + run.report.gps_resets > start_resets:
+            return False
+        return all(c.mean_nis <= limits.get(c.channel, NIS_WARNING_RANGE[1]) or c.n_updates < MIN_UPDATES
+                   for c in channel_consistency(run.diagnostics))
+
+    def evaluate(values):
+        ll, run = replay(values)
+        return (ll if feasible(run) else -math.inf), run
 
     # 1. covariance matching on the measurement figures (repeated while it pays)
     for _ in range(MATCH_ITERATIONS):
@@ -198,7 +213,7 @@ def tune_estimator(log: FlightLog, cal: Calibration, estimator: str, *, budget: 
                 matched[k.figure] = min(max(best[k.figure] * factor, k.lower), k.upper)
         if matched == best:
             break
-        ll, run = replay(matched)
+        ll, run = evaluate(matched)
         spent += 1
         if ll <= best_ll:
             trace.append(best_ll)
@@ -217,7 +232,7 @@ def tune_estimator(log: FlightLog, cal: Calibration, estimator: str, *, budget: 
                     candidate[k.figure] = min(max(best[k.figure] * 10.0 ** (direction * step), k.lower), k.upper)
                     if candidate[k.figure] == best[k.figure]:
                         break
-                    ll, run = replay(candidate)
+                    ll, run = evaluate(candidate)
                     spent += 1
                     if ll <= best_ll:
                         trace.append(best_ll)
