@@ -12,7 +12,6 @@ Every function takes the workspace root as a string so the cache key names the w
 
 from __future__ import annotations
 
-import dataclasses
 import hashlib
 import json
 import tempfile
@@ -30,7 +29,6 @@ from app.workspace import LogEntry, Workspace
 from calib.bias import local_gravity
 from calib.calibration import Calibration, FirSettings, allan_curves, calibrate, sensor_samples, with_tau
 from calib.export import calibration_to_dict, read_calibration
-from calib.filter_figures import calibration_figures
 from calib.fir import design_fir, edge_slice, zero_phase_lowpass
 from calib.parameter_export import DEFAULT_PREDICT_PERIOD_S, export_figures, px4_parameters, write_px4_params
 from calib.segments import (
@@ -43,7 +41,7 @@ from calib.segments import (
     user_segment,
 )
 from calib.tau import TauSelection, choose_tau, user_tau
-from estimators.calibration_replay import inflight_bias, tau_replay
+from estimators.calibration_replay import tau_replay, with_filter_figures
 from estimators.environment import geodetic_to_ned
 from estimators.sun.prediction import sun_vector_table
 from estimators.tuning import tune_calibration
@@ -264,8 +262,7 @@ def tuned_calibration(root: str, sha256: str, _cal: Calibration, cal_digest: str
     digest of the calibration's CALIB.json text."""
     del cal_digest  # the cache key of _cal
     log = stored_log(root, sha256)
-    cal = _cal if _cal.inflight_bias is not None else dataclasses.replace(_cal, inflight_bias=inflight_bias(log, _cal))
-    return tune_calibration(log, dataclasses.replace(cal, figures=calibration_figures(cal)))
+    return tune_calibration(log, with_filter_figures(log, _cal))
 
 
 # ---------------------------------------------------------------------------------------------------- estimators

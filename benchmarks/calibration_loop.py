@@ -24,10 +24,9 @@ import pandas as pd
 
 from calib.bias import local_gravity
 from calib.calibration import calibrate, with_tau
-from calib.filter_figures import calibration_figures
 from calib.tau import choose_tau
 from estimators.api import ESTIMATORS, run_estimators
-from estimators.calibration_replay import inflight_bias, tau_replay
+from estimators.calibration_replay import tau_replay, with_filter_figures
 from estimators.config import config_from_calibration
 from estimators.evaluation import rms_errors
 from estimators.tuning import tune_calibration
@@ -86,8 +85,7 @@ def evaluate(name: str, scenario, seed: int, *, tune: bool, workdir: Path) -> di
     started = time.perf_counter()
     cal = calibrate(log, gravity=local_gravity(log))
     cal = with_tau(cal, choose_tau(tau_replay(log, cal)))
-    cal = replace(cal, inflight_bias=inflight_bias(log, cal))
-    cal = replace(cal, figures=calibration_figures(cal))
+    cal = with_filter_figures(log, cal)
     timings = {"calibrate_s": time.perf_counter() - started}
     settings = {"default": None, "calib": {name: config_from_calibration(cal, estimator=name) for name in ESTIMATORS}}
     if tune:

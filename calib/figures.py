@@ -13,6 +13,7 @@ figures (source :data:`SOURCE_TUNED`), the likelihood trace and the NIS per chan
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 #: name -> (unit, meaning). Densities are per sqrt(Hz) (variance per second of a white process), walks per
@@ -154,3 +155,9 @@ class TuneResult:
     nis_after: tuple[ChannelConsistency, ...] = ()
     wall_s: float = 0.0
     notes: tuple[str, ...] = field(default_factory=tuple)
+
+
+def rms(values) -> float:
+    """Root mean square of a non-empty sequence of numbers (the value of a per-axis figure)."""
+    values = [float(v) for v in values]
+    return math.sqrt(sum(v * v for v in values) / len(values))

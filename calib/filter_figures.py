@@ -31,6 +31,7 @@ from calib.figures import (
     SOURCE_STILL_BIAS,
     SOURCE_TAU,
     Figure,
+    rms,
 )
 
 #: In-flight bias estimates are used only when every axis's posterior std is below these [rad/s, m/s^2].
@@ -56,7 +57,7 @@ def calibration_figures(cal: Calibration) -> dict[str, Figure]:
     for name, sensor in (("gyro_bias_walk", "gyroscope"), ("accel_bias_walk", "accelerometer")):
         walks = [f.rate_random_walk for f in cal.allan.get(sensor, ()) if math.isfinite(f.rate_random_walk)]
         if walks:
-            figures[name] = Figure(name, _rms(walks), SOURCE_ALLAN, note=f"Allan rate random walk, RMS of the "
+            figures[name] = Figure(name, rms(walks), SOURCE_ALLAN, note=f"Allan rate random walk, RMS of the "
                                                                         f"{len(walks)} axes with a +1/2 slope")
     figures.update(_biases(cal))
     figures["accel_tau"] = Figure("accel_tau", cal.tau.tau, SOURCE_TAU, note=f"chosen by: {cal.tau.method}")
@@ -72,7 +73,7 @@ def calibration_figures(cal: Calibration) -> dict[str, Figure]:
         diagonal = np.diag(cal.r_matrix("magnetometer"))
         if np.all(np.isfinite(diagonal)) and np.all(diagonal > 0):
             axes = tuple(float(v) for v in np.sqrt(diagonal))
-            figures["mag_noise"] = Figure("mag_noise", _rms(axes), _measurement_source(cal, "magnetometer"),
+            figures["mag_noise"] = Figure("mag_noise", rms(axes), _measurement_source(cal, "magnetometer"),
                                           axes=axes, note=SOURCE_R)
             strength = float(np.linalg.norm(cal.sensors["magnetometer"].mean))
             if strength > 0:
@@ -83,7 +84,7 @@ def calibration_figures(cal: Calibration) -> dict[str, Figure]:
         sensor = cal.sensors["gps_velocity"]
         horizontal = [s for s in sensor.sigma[:2] if math.isfinite(s) and s > 0]
         if horizontal:
-            figures["gps_vel_noise"] = Figure("gps_vel_noise", _rms(horizontal), _measurement_source(cal,
+            figures["gps_vel_noise"] = Figure("gps_vel_noise", rms(horizontal), _measurement_source(cal,
                                                                                                   "gps_velocity"),
                                               note="used only when the receiver reports no speed accuracy")
     return figures
@@ -93,15 +94,15 @@ def _imu_density(cal: Calibration, name: str, sensor: str) -> Figure | None:
     """White-noise density of an IMU sensor: Allan (still) > still residual > in-flight residual (upper bound)."""
     allan = [f.white_density for f in cal.allan.get(sensor, ()) if math.isfinite(f.white_density)]
     if len(allan) == 3:
-        return Figure(name, _rms(allan), SOURCE_ALLAN, axes=tuple(allan), note="Allan white-noise density")
+        return Figure(name, rms(allan), SOURCE_ALLAN, axes=tuple(allan), note="Allan white-noise density")
     if sensor not in cal.sensors:
         return None
     s = cal.sensors[sensor]
     axes = tuple(sigma / math.sqrt(s.fir.fs_hz) for sigma in s.sigma)
     if s.segment.kind in STILL_KINDS:
-        return Figure(name, _rms(axes), SOURCE_STILL, axes=axes,
+        return Figure(name, rms(axes), SOURCE_STILL, axes=axes,
                       note=f"sigma / sqrt({s.fir.fs_hz:.1f} Hz) over {s.segment.start_s:.1f}..{s.segment.end_s:.1f} s")
-    return Figure(name, _rms(axes), SOURCE_INFLIGHT_BOUND, axes=axes,
+    return Figure(name, rms(axes), SOURCE_INFLIGHT_BOUND, axes=axes,
                   note=f"sigma / sqrt({s.fir.fs_hz:.1f} Hz) over the {s.segment.kind} segment "
                        f"{s.segment.start_s:.1f}..{s.segment.end_s:.1f} s: holds motion above the "
                        f"{s.fir.cutoff_hz:g} Hz cutoff and vibration")
@@ -117,7 +118,7 @@ def _accel_axis_density(cal: Calibration) -> Figure | None:
     if not (len(noise) == 3 and np.all(np.isfinite(noise)) and np.all(noise > 0)):
         return None
     axes = tuple(float(v) for v in noise / np.sqrt(sensor.fir.fs_hz))
-    return Figure("accel_axis_noise_density", _rms(axes), _measurement_source(cal, "accelerometer"), axes=axes,
+    return Figure("accel_axis_noise_density", rms(axes), _measurement_source(cal, "accelerometer"), axes=axes,
                   note=f"{cal.noise} per axis / sqrt({sensor.fir.fs_hz:.1f} Hz) (eq 51 without tau)")
 
 
@@ -129,19 +130,19 @@ def _biases(cal: Calibration) -> dict[str, Figure]:
                                    and _converged(flight.accel_bias_std_m_s2, MAX_ACCEL_BIAS_STD_M_S2)):
         flight = None  # an estimate that has not converged (short flight, few turns) is no calibration
     if flight is not None:
-        out["gyro_bias"] = Figure("gyro_bias", _rms(flight.gyro_bias_rad_s), SOURCE_INFLIGHT_BIAS,
+        out["gyro_bias"] = Figure("gyro_bias", rms(flight.gyro_bias_rad_s), SOURCE_INFLIGHT_BIAS,
                                   axes=tuple(flight.gyro_bias_rad_s),
                                   note=f"{flight.source} bias states over {flight.window_s[0]:.0f}.."
                                        f"{flight.window_s[1]:.0f} s")
         if flight.accel_bias_m_s2 is not None:
-            out["accel_bias"] = Figure("accel_bias", _rms(flight.accel_bias_m_s2), SOURCE_INFLIGHT_BIAS,
+            out["accel_bias"] = Figure("accel_bias", rms(flight.accel_bias_m_s2), SOURCE_INFLIGHT_BIAS,
                                        axes=tuple(flight.accel_bias_m_s2), note=f"{flight.source} bias states")
     if still is not None:
         if "gyro_bias" not in out:
-            out["gyro_bias"] = Figure("gyro_bias", _rms(still.gyro_bias_rad_s), SOURCE_STILL_BIAS,
+            out["gyro_bias"] = Figure("gyro_bias", rms(still.gyro_bias_rad_s), SOURCE_STILL_BIAS,
                                       axes=tuple(still.gyro_bias_rad_s), note="mean rate over the still segment")
         if "accel_bias" not in out and all(math.isfinite(v) for v in still.accel_bias_body_m_s2):
-            out["accel_bias"] = Figure("accel_bias", _rms(still.accel_bias_body_m_s2), SOURCE_STILL_BIAS,
+            out["accel_bias"] = Figure("accel_bias", rms(still.accel_bias_body_m_s2), SOURCE_STILL_BIAS,
                                        axes=tuple(still.accel_bias_body_m_s2),
                                        note="component along gravity only (one orientation); the horizontal "
                                             "components are not identifiable from it")
@@ -161,8 +162,3 @@ def _r_sigma(cal: Calibration, sensor: str) -> float | None:
         return None
     diagonal = [v for v in np.diag(cal.r_matrix(sensor)) if math.isfinite(v) and v > 0]
     return math.sqrt(sum(diagonal) / len(diagonal)) if diagonal else None
-
-
-def _rms(values) -> float:
-    values = [float(v) for v in values]
-    return math.sqrt(sum(v * v for v in values) / len(values))

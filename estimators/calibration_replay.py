@@ -7,12 +7,14 @@ It lives in the estimators layer because it runs a filter; :func:`calib.tau.choo
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Callable
 from dataclasses import replace
 
 from calib.bias import InflightBias
 from calib.calibration import Calibration
+from calib.filter_figures import calibration_figures
 from calib.tau import Innovations
 from estimators.config import config_from_calibration
 from estimators.indirect.run import run as run_indirect
@@ -65,3 +67,11 @@ def inflight_bias(log: FlightLog, cal: Calibration) -> InflightBias | None:
                         gyro_bias_std_rad_s=tuple(std.get(f"dbg{a}", math.nan) for a in "xyz"),
                         accel_bias_m_s2=tuple(final[f"ba{a}"] for a in "xyz"),
                         accel_bias_std_m_s2=tuple(std.get(f"dba{a}", math.nan) for a in "xyz"))
+
+
+def with_filter_figures(log: FlightLog, cal: Calibration) -> Calibration:
+    """``cal`` completed for the filters: its in-flight bias (:func:`inflight_bias`, unless it has one) and its filter
+    figures (:func:`calib.filter_figures.calibration_figures`) filled in, as CALIB.json stores them."""
+    if cal.inflight_bias is None:
+        cal = dataclasses.replace(cal, inflight_bias=inflight_bias(log, cal))
+    return dataclasses.replace(cal, figures=calibration_figures(cal))

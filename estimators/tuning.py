@@ -29,7 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from calib.calibration import Calibration
-from calib.figures import SOURCE_TUNED, Figure, TuneResult
+from calib.figures import SOURCE_TUNED, Figure, TuneResult, rms
 from calib.filter_figures import calibration_figures
 from estimators.api import DEFAULT_ESTIMATORS, estimator_function, parse_estimator_names
 from estimators.config import EstimatorConfig, config_from_figures
@@ -107,7 +107,7 @@ def start_values(config: EstimatorConfig, strength_gauss: float) -> dict[str, fl
     mag_axes = noise.mag_sigma_axes or (noise.mag_sigma,) * 3
     return {
         "baro_noise": noise.baro_sigma_m, "airspeed_noise": noise.airspeed_sigma_m_s,
-        "mag_noise": _rms(mag_axes) * strength_gauss, "sideslip_noise": noise.sideslip_sigma_m_s,
+        "mag_noise": rms(mag_axes) * strength_gauss, "sideslip_noise": noise.sideslip_sigma_m_s,
         "gps_pos_noise_scale": 1.0, "gps_hgt_noise_scale": 1.0, "gps_vel_noise_scale": noise.gps_vel_accuracy_scale,
         "accel_stage1_floor": (calibrated.accel_stage1_floor_m_s2 if calibrated.accel_stage1_floor_m_s2 is not None
                                else ThreeStageOptions().accel_sigma_floor_m_s2),
@@ -134,7 +134,7 @@ def tuned_figures(base: dict[str, Figure], values: dict[str, float], start_mag_a
     for name, value in values.items():
         axes = ()
         if name == "mag_noise":
-            ratio = value / (_rms(start_mag_axes) * strength_gauss)
+            ratio = value / (rms(start_mag_axes) * strength_gauss)
             axes = tuple(a * strength_gauss * ratio for a in start_mag_axes)
         figures[name] = Figure(name, value, SOURCE_TUNED, axes=axes)
     if "mag_noise" in values or "mag_bias_walk" in values:
@@ -280,8 +280,3 @@ def _mean_nis(run: EstimatorRun, channel: str) -> float:
     nis = diagnostics.loc[rows, "nis"].to_numpy(dtype=float)
     nis = nis[np.isfinite(nis)]
     return float(nis.mean()) if len(nis) else math.nan
-
-
-def _rms(values) -> float:
-    values = [float(v) for v in values]
-    return math.sqrt(sum(v * v for v in values) / len(values))

@@ -14,14 +14,12 @@ noise figures (docs/calibration.md, 'Noise identification')."""
 from __future__ import annotations
 
 import argparse
-import dataclasses
 
 import numpy as np
 
 from calib.bias import local_gravity
 from calib.calibration import IMU_SENSORS, NOISE_CHOICES, Calibration, FirSettings, calibrate, with_tau
 from calib.export import write_calibration
-from calib.filter_figures import calibration_figures
 from calib.parameter_export import (
     DEFAULT_PREDICT_PERIOD_S,
     EKF3_TARGET_DT_S,
@@ -36,7 +34,7 @@ from calib.segments import user_segment
 from calib.tables import table4
 from calib.tau import DEFAULT_TAU, TAU_METHODS, TauSelection, choose_tau, user_tau
 from estimators.api import DEFAULT_ESTIMATORS, parse_estimator_names
-from estimators.calibration_replay import inflight_bias, tau_replay
+from estimators.calibration_replay import tau_replay, with_filter_figures
 from estimators.tuning import DEFAULT_BUDGET, tune_calibration
 from ingest.errors import InputError
 from ingest.ulog_reader import load_flight_log
@@ -86,9 +84,7 @@ def run(args: argparse.Namespace) -> int:
                     gravity=local_gravity(log))
     if tau is None:
         cal = with_tau(cal, choose_tau(tau_replay(log, cal), method=args.tau_method))
-    if cal.inflight_bias is None:
-        cal = dataclasses.replace(cal, inflight_bias=inflight_bias(log, cal))
-    cal = dataclasses.replace(cal, figures=calibration_figures(cal))
+    cal = with_filter_figures(log, cal)
     if args.tune:
         cal = tune_calibration(log, cal, parse_estimator_names(args.estimators), budget=args.tune_budget)
     try:
