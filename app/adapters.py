@@ -12,6 +12,7 @@ Every function takes the workspace root as a string so the cache key names the w
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 import tempfile
@@ -46,6 +47,7 @@ from estimators.environment import geodetic_to_ned
 from estimators.sun.prediction import sun_vector_table
 from estimators.tuning import tune_calibration
 from ingest import FlightLog
+from ingest.quality import assess_input_quality
 
 #: Bytes per MB in Streamlit's ``server.maxUploadSize``.
 BYTES_PER_MB = 1024 * 1024
@@ -93,9 +95,11 @@ def parsed_log(sha256: str, sun_sha256: str | None, device_sha256: str | None, n
     return load_log(_ulog, _sun_csv, _device_json, name=name, max_bytes=max_upload_bytes())
 
 
-def validate_upload(content: bytes, name: str, sun_csv: bytes | None, device_json: bytes | None) -> None:
-    """Parse an upload before it is stored (the parsed log stays cached); InputError when it is unusable."""
-    parsed_log(_sha256(content), _sha256(sun_csv), _sha256(device_json), name, content, sun_csv, device_json)
+def validate_upload(content: bytes, name: str, sun_csv: bytes | None, device_json: bytes | None) -> FlightLog:
+    """Parse an upload before it is stored (the parsed log stays cached) and return it, its reader warnings in
+    ``meta.warnings``; InputError when it is unusable."""
+    return parsed_log(_sha256(content), _sha256(sun_csv), _sha256(device_json), name, content, sun_csv,
+                      device_json)
 
 
 def stored_log(root: str, sha256: str) -> FlightLog:
@@ -160,6 +164,13 @@ def flight_phases(root: str, sha256: str) -> pd.DataFrame:
     log = stored_log(root, sha256)
     return tables.phase_table(find_stationary_segments(log), find_steady_segments(log),
                               log.meta.start_time_s, log.meta.end_time_s)
+
+
+@st.cache_data(max_entries=8, show_spinner=False)
+def input_quality(root: str, sha256: str) -> list[dict]:
+    """The log's input quality findings (:func:`ingest.quality.assess_input_quality`) as dicts (kind, severity,
+    stream, message, value, threshold, unit), refused ones first."""
+    return [dataclasses.asdict(finding) for finding in assess_input_quality(stored_log(root, sha256))]
 
 
 # ---------------------------------------------------------------------------------------------------- calibration

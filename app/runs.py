@@ -42,12 +42,16 @@ class RunSettings:
         :data:`DEFAULT_NOISE`, :data:`AUTO_CALIBRATION`, or the id of a calibration saved in the workspace.
     rate_hz : float
         Output rate [Hz].
+    allow_untrusted : bool
+        Replay a log whose inputs the estimators refuse (``run_estimators(..., allow_untrusted=True)``); its
+        reports then lead with the refusal.
     """
 
     estimators: tuple[str, ...] = DEFAULT_ESTIMATORS
     heading: str = "mag"
     noise: str = DEFAULT_NOISE
     rate_hz: float = 50.0
+    allow_untrusted: bool = False
 
     def to_dict(self) -> dict:
         """JSON-ready form (lists for tuples)."""
@@ -72,12 +76,17 @@ def replay(log: FlightLog, settings: RunSettings, calibration: Calibration | Non
     log : FlightLog
         The flight.
     settings : RunSettings
-        Estimators, heading aid, output rate.
+        Estimators, heading aid, output rate, whether refused inputs are replayed anyway.
     calibration : Calibration, optional
         Noise for R (:func:`estimators.config.config_from_calibration`, the estimator's tuned figures when the
         calibration has them); the default noise without one.
     progress : callable, optional
         ``progress(fraction, text)`` before each estimator and at the end.
+
+    Raises
+    ------
+    InputError
+        The log's inputs are refused and ``settings.allow_untrusted`` is False (before any estimator runs).
 
     Returns
     -------
@@ -93,7 +102,7 @@ def replay(log: FlightLog, settings: RunSettings, calibration: Calibration | Non
         config = (EstimatorConfig() if calibration is None
                   else config_from_calibration(calibration, estimator=name))
         result = run_estimators(log, estimators=(name,), config=config, heading=settings.heading,
-                                rate_hz=settings.rate_hz)
+                                rate_hz=settings.rate_hz, allow_untrusted=settings.allow_untrusted)
         states.append(result.states)
         diagnostics.append(result.diagnostics)
         report[name] = dataclasses.asdict(result.reports[name])

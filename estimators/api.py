@@ -13,6 +13,11 @@ reader and a linter can follow).
 An estimator's function has the signature ``run(flight_log, inputs, config) -> EstimatorRun`` where ``inputs``
 (:class:`~estimators.inputs.records.ReplayInputs`, built once per call and shared by all estimators) carries the IMU
 rows, time-sorted measurement events, origin, sensor plan and initial alignment.
+
+Inputs that parse but cannot give a trustworthy estimate (:func:`ingest.quality.assess_input_quality`) are refused
+with an :class:`~ingest.errors.InputError` naming the reason, unless ``allow_untrusted=True``; then, and for every
+merely flagged finding, each report carries the finding as a warning (docs/estimators.md, 'Inputs the estimators
+refuse').
 """
 
 from __future__ import annotations
@@ -35,6 +40,7 @@ from estimators.inputs.records import HEADING_SOURCES
 from estimators.three_stage.run import run as run_three_stage
 from ingest.errors import InputError
 from ingest.flightlog import FlightLog
+from ingest.quality import REFUSE, QualityFinding, assess_input_quality
 
 #: Registry: estimator name -> run function with the signature ``(flight_log, inputs, config) -> EstimatorRun``.
 #: Add an estimator with one import and one line.
@@ -60,6 +66,9 @@ IGNORED_FIGURES: dict[str, dict[str, str]] = {
 }
 #: Default estimator selection (all three, paper order).
 DEFAULT_ESTIMATORS = ("three_stage", "full_state_direct", "full_state_indirect")
+#: Leads the warning of a refused finding replayed on request (``allow_untrusted=True``), and of a flagged one.
+UNTRUSTED_PREFIX = "UNTRUSTED INPUT (refused, replayed on request): "
+FLAGGED_PREFIX = "input quality: "
 
 
 @dataclass(frozen=True)
@@ -75,11 +84,15 @@ class ReplayResult:
         :data:`~estimators.core.results.DIAGNOSTIC_COLUMNS`.
     reports : dict of str -> EstimatorReport
         Per estimator, in the requested order.
+    input_quality : tuple of QualityFinding
+        The log's quality findings (:func:`ingest.quality.assess_input_quality`), refused ones first; a refused one
+        is here only when the replay was forced (``allow_untrusted=True``).
     """
 
     states: pd.DataFrame
     diagnostics: pd.DataFrame
     reports: dict[str, EstimatorReport]
+    input_quality: tuple[QualityFinding, ...] = ()
 
 
 def estimator_function(name: str) -> Callable[..., EstimatorRun]:
@@ -111,7 +124,8 @@ def parse_estimator_names(names: str | Sequence[str]) -> tuple[str, ...]:
 def run_estimators(flight_log: FlightLog, *, estimators: str | Sequence[str] = DEFAULT_ESTIMATORS,
                    config: EstimatorConfig | None = None, heading: str = "mag", rate_hz: float = 50.0,
                    sun_observations: pd.DataFrame | None = None,
-                   configs: Mapping[str, EstimatorConfig] | None = None) -> ReplayResult:
+                   configs: Mapping[str, EstimatorConfig] | None = None,
+                   allow_untrusted: bool = False) -> ReplayResult:
     """Run estimators on one log.
 
     Parameters
@@ -133,10 +147,14 @@ def run_estimators(flight_log: FlightLog, *, estimators: str | Sequence[str] = D
         Per-estimator settings overriding ``config`` (noise identified per estimator,
         :func:`estimators.config.config_from_calibration` with ``estimator=``); the replay inputs are built once per
         distinct configuration.
+    allow_untrusted : bool
+        Replay a log whose inputs are refused (``solarnav replay --force``); every report then leads its warnings
+        with each refused finding (:data:`UNTRUSTED_PREFIX`).
 
     Every report carries ``details["consistency"]`` (mean NIS per channel, :mod:`estimators.consistency`) and
     ``details["calibration"]`` (each calibrated figure behind the run's settings: its source and what this
     estimator did with it). A run whose settings come from a calibration gets a warning per inconsistent channel.
+    Every report also carries ``details["input_quality"]`` (the findings as dicts) and a warning per finding.
 
     Returns
     -------
@@ -145,11 +163,13 @@ def run_estimators(flight_log: FlightLog, *, estimators: str | Sequence[str] = D
     Raises
     ------
     InputError
-        Unknown estimator, bad rate/heading, no IMU data, sun heading without sun data.
+        Unknown estimator, bad rate/heading, no IMU data, sun heading without sun data, refused inputs (without
+        ``allow_untrusted``).
     """
     names = parse_estimator_names(estimators)
     if heading not in HEADING_SOURCES:
         raise InputError(f"heading must be one of {', '.join(HEADING_SOURCES)}, got {heading!r}", field="heading")
+    findings = checked_input_quality(flight_log, allow_untrusted=allow_untrusted)
     config = EstimatorConfig() if config is None else config
     configs = {name: (configs or {}).get(name, config) for name in names}
     functions = {name: estimator_function(name) for name in names}
@@ -163,13 +183,37 @@ def run_estimators(flight_log: FlightLog, *, estimators: str | Sequence[str] = D
                                                           sun_observations=sun_observations))
         prepare_s = time.perf_counter() - started
         run = function(flight_log, built[key][1], run_config)
-        reports[name] = _checked_report(run, run_config, {"prepare": prepare_s, **run.report.timings_s})
+        reports[name] = _checked_report(run, run_config, {"prepare": prepare_s, **run.report.timings_s}, findings)
         runs.append(run)
     state_columns = dict.fromkeys(column for run in runs for column in run.states.columns)
     extra = [column for column in state_columns if column not in STATE_COLUMNS]
     states = _stacked(names, [run.states for run in runs], (*STATE_COLUMNS[1:], *extra))
     diagnostics = _stacked(names, [run.diagnostics for run in runs], DIAGNOSTIC_COLUMNS[1:])
-    return ReplayResult(states=states, diagnostics=diagnostics, reports=reports)
+    return ReplayResult(states=states, diagnostics=diagnostics, reports=reports, input_quality=findings)
+
+
+def checked_input_quality(flight_log: FlightLog, *, allow_untrusted: bool = False) -> tuple[QualityFinding, ...]:
+    """The log's quality findings (:func:`ingest.quality.assess_input_quality`), after the refusal policy.
+
+    Raises
+    ------
+    InputError
+        A finding is refused and ``allow_untrusted`` is False: one line naming every refused finding (stream and
+        figure) and the override.
+    """
+    findings = assess_input_quality(flight_log)
+    refused = [finding.message for finding in findings if finding.severity == REFUSE]
+    if refused and not allow_untrusted:
+        raise InputError(f"refused: {'; '.join(refused)}; replay anyway with --force (allow_untrusted=True), "
+                         "every report then carries the warning", source=flight_log.meta.source)
+    return findings
+
+
+def quality_warnings(findings: Sequence[QualityFinding]) -> list[str]:
+    """One warning per finding: :data:`UNTRUSTED_PREFIX` for a refused (forced) one, :data:`FLAGGED_PREFIX` for a
+    flagged one, refused first."""
+    return [(UNTRUSTED_PREFIX if finding.severity == REFUSE else FLAGGED_PREFIX) + finding.message
+            for finding in findings]
 
 
 def _stacked(names: tuple[str, ...], frames: list[pd.DataFrame], columns: Sequence[str]) -> pd.DataFrame:
@@ -188,9 +232,10 @@ def _stacked(names: tuple[str, ...], frames: list[pd.DataFrame], columns: Sequen
     return pd.DataFrame(table, copy=False)
 
 
-def _checked_report(run: EstimatorRun, config: EstimatorConfig, timings: dict[str, float]) -> EstimatorReport:
-    """The run's report with its timings, the NIS consistency per channel, the calibration provenance and, for a
-    calibrated run, a warning per inconsistent channel."""
+def _checked_report(run: EstimatorRun, config: EstimatorConfig, timings: dict[str, float],
+                    findings: Sequence[QualityFinding] = ()) -> EstimatorReport:
+    """The run's report with its timings, the NIS consistency per channel, the calibration provenance, the input
+    quality findings (leading the warnings) and, for a calibrated run, a warning per inconsistent channel."""
     report = run.report
     channels = channel_consistency(run.diagnostics)
     provenance = config.calibrated.provenance
@@ -198,9 +243,9 @@ def _checked_report(run: EstimatorRun, config: EstimatorConfig, timings: dict[st
     calibration = [{"figure": figure, "source": source,
                     "use": f"ignored: {ignored[figure]}" if figure in ignored else use}
                    for figure, source, use in provenance]
-    warnings = list(report.warnings)
+    warnings = [*quality_warnings(findings), *report.warnings]
     if provenance:
         warnings += consistency_warnings(report.estimator, channels)
     details = {**report.details, "consistency": [dataclasses.asdict(c) for c in channels],
-               "calibration": calibration}
+               "calibration": calibration, "input_quality": [dataclasses.asdict(f) for f in findings]}
     return replace(report, timings_s=timings, warnings=tuple(warnings), details=details)

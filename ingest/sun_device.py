@@ -15,6 +15,11 @@ import numpy as np
 from ingest.frames import euler_to_matrix
 
 N_CELLS = 7
+#: Largest magnitude accepted for an azimuth or mounting angle [deg]; beyond a turn it is a typo, not geometry.
+MAX_ANGLE_DEG = 360.0
+#: Smallest singular value the 7 unit normals must reach [-]: below it the cells do not see all three axes and
+#: no sun vector can be solved (e.g. all side cells at one azimuth).
+MIN_NORMALS_SINGULAR_VALUE = 1e-3
 
 
 @dataclass(frozen=True)
@@ -29,6 +34,13 @@ class SunDevice:
         Device azimuths of the side cells 2..7 [deg], measured from device x towards device y.
     mount_rpy_deg : tuple of 3 float
         Device-to-body mounting rotation as ZYX Euler angles (roll, pitch, yaw) [deg].
+
+    Raises
+    ------
+    ValueError
+        Not 6 azimuths or 3 mounting angles, ``tilt_deg`` outside (0, 90) deg, an azimuth or mounting angle
+        non-finite or beyond +-360 deg, or cell normals that do not span 3-D space (no sun vector could be
+        solved).
     """
 
     tilt_deg: float = 45.0
@@ -43,6 +55,14 @@ class SunDevice:
             raise ValueError(f"tilt_deg must be in (0, 90) deg, got {self.tilt_deg}")
         if len(self.mount_rpy_deg) != 3:
             raise ValueError(f"mount_rpy_deg must have 3 angles, got {len(self.mount_rpy_deg)}")
+        for key in ("azimuths_deg", "mount_rpy_deg"):
+            angles_deg = np.asarray(getattr(self, key), dtype=float)
+            if not np.all(np.abs(angles_deg) <= MAX_ANGLE_DEG):  # also refuses NaN
+                raise ValueError(f"{key} must be finite angles within +-{MAX_ANGLE_DEG:g} deg, "
+                                 f"got {list(getattr(self, key))}")
+        if np.linalg.svd(self.normals_device, compute_uv=False)[-1] < MIN_NORMALS_SINGULAR_VALUE:
+            raise ValueError("the cell normals do not span 3-D space (side-cell azimuths too close together or "
+                             f"opposite), got azimuths_deg {list(self.azimuths_deg)}")
 
     @property
     def normals_device(self) -> np.ndarray:

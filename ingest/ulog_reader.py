@@ -1,14 +1,17 @@
 """PX4 ULog -> canonical :class:`~ingest.flightlog.FlightLog`.
 
 :func:`load_flight_log` takes a path, bytes or a binary file object (a Streamlit upload), parses only the
-topics listed in :mod:`ingest.px4_topics` with pyulog, and hands the result to :func:`flightlog_from_ulog`,
-which maps PX4 names and units to the canonical ones and cleans the time axis. Everything it works around is
-written to ``FlightLog.meta.warnings``.
+topics listed in :mod:`ingest.px4_topics` with pyulog under the guards of :mod:`ingest.ulog_guard` (bounded time
+and memory on any file, docs/robustness.md, 'ULog reader guard'), and hands the result to
+:func:`flightlog_from_ulog`, which maps PX4 names and units to the canonical ones and cleans the time axis.
+Everything it works around is written to ``FlightLog.meta.warnings``; damage costs only the damaged part (a
+parameter, a topic, some rows) where it can be isolated.
 
 Time axis of every topic: PX4 ``timestamp`` [us] cast to int64 before any arithmetic; rows with timestamp 0 or
-timed before the log's start are dropped, rows out of order are sorted (stable), and of rows with equal times
-the first logged is kept, so every stream index is strictly increasing. A topic whose timestamps are all zero
-(``ekf2_innovations`` in some PX4 1.6 logs) is skipped.
+timed before the log's start are dropped, so are corrupt timestamps far from the rest of the topic or from the
+IMU's span (docs/robustness.md, 'Time base checks'); rows out of order are sorted (stable), and of rows with
+equal times the first logged is kept, so every stream index is strictly increasing. A topic whose timestamps
+are all zero (``ekf2_innovations`` in some PX4 1.6 logs) is skipped.
 
 Multi-instance topics: instance 0 (the primary), or the instance with the most samples when instance 0 was not
 logged; the stream's topic then reads ``"sensor_gps[1]"`` (``"[0]"`` when other instances exist).
@@ -20,10 +23,8 @@ once and their row spacing alone is bimodal.
 
 from __future__ import annotations
 
-import contextlib
 import hashlib
-import io
-import struct
+import numbers
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
@@ -31,7 +32,6 @@ import numpy as np
 import pandas as pd
 from numba import njit
 from pyulog import ULog
-from pyulog.exceptions import ULogException
 
 from ingest.atmosphere import (
     ISA_SEA_LEVEL_DENSITY_KG_M3,
@@ -58,13 +58,28 @@ from ingest.px4_topics import (
     TopicSpec,
 )
 from ingest.sources import Source, read_content
+from ingest.ulog_guard import parse_ulog
 
 #: GPS fix_type below this has no position (0-1: no fix).
 MIN_POSITION_FIX_TYPE = 2
-#: ``SENS_BARO_QNH`` default [hPa] for logs without the parameter.
+#: ``SENS_BARO_QNH`` default [hPa] for logs without the parameter (or with an implausible one: outside the range
+#: below, which PX4 also enforces).
 DEFAULT_QNH_HPA = 1013.25
+QNH_RANGE_HPA = (500.0, 1500.0)
 #: ULog file header: magic bytes and the 8-byte start timestamp.
 ULOG_HEADER_BYTES = 16
+#: A topic's rows split wherever sorted times leave a gap above max(OUTLIER_GAP_MIN_S, OUTLIER_GAP_FACTOR x the
+#: median spacing); a group of at most OUTLIER_RUN_ROWS rows (and at most a tenth of the topic) cut off so is a
+#: corrupt timestamp. Topics with fewer than OUTLIER_MIN_ROWS rows are not judged.
+OUTLIER_GAP_MIN_S = 5.0
+OUTLIER_GAP_FACTOR = 100.0
+OUTLIER_RUN_ROWS = 4
+OUTLIER_MIN_ROWS = 20
+#: A gap longer than this [s] splits a topic into parts of which only the largest is kept; and rows of other
+#: streams further than this outside the IMU's span are dropped: no logger pauses that long within one log.
+TIME_BASE_SPLIT_S = 3600.0
+#: A sensor sample time (``timestamp_sample``) further than this from its row time [s] is corrupt (PX4: < 1 s).
+MAX_SAMPLE_LAG_S = 60.0
 
 
 def load_flight_log(path_or_bytes: Source, *, max_bytes: int | None = None, name: str | None = None) -> FlightLog:
@@ -89,13 +104,13 @@ def load_flight_log(path_or_bytes: Source, *, max_bytes: int | None = None, name
     Raises
     ------
     InputError
-        The file cannot be read, is empty, is not a ULog, or has no IMU (``sensor_combined``) data.
+        The file cannot be read, is empty, is not a ULog, is damaged beyond what the reader can skip
+        (docs/robustness.md, 'ULog reader guard'), or has no usable IMU (``sensor_combined``) data.
     FileTooLargeError
         The file is larger than ``max_bytes``.
     """
     content, name = read_content(path_or_bytes, name=name, max_bytes=max_bytes)
-    ulog = _parse(content, name)
-    notes = []
+    ulog, notes = parse_ulog(content, name, ALL_TOPICS)
     if not ulog.file_corruption:
         end = _message_walk_end(np.frombuffer(content, dtype=np.uint8), ULOG_HEADER_BYTES)
         if end != len(content):
@@ -131,12 +146,17 @@ def flightlog_from_ulog(ulog: ULog, *, source: str, sha256: str = "", notes: Seq
     warnings = list(file_notes)
     streams: dict[str, pd.DataFrame] = {}
     topics: dict[str, str] = {}
-    vehicle_type = ulog.initial_parameters.get("MAV_TYPE")
-    vehicle_type = None if vehicle_type is None else int(vehicle_type)
-    parameters = {key: float(value) for key, value in ulog.initial_parameters.items()}
+    parameters = _numeric_parameters(ulog.initial_parameters, warnings)
+    vehicle_type = _vehicle_type(ulog.initial_parameters, parameters, warnings)
+    info = _typed_info(ulog, warnings)
+    imu_reason = ""
     for stream, specs in STREAM_TOPICS.items():
-        found = _first_usable_topic(ulog, specs, warnings)
+        imu = streams.get("imu")
+        span_s = None if imu is None or not len(imu) else (float(imu.index[0]), float(imu.index[-1]))
+        found = _first_usable_topic(ulog, specs, warnings, span_s)
         if isinstance(found, str):
+            if stream == "imu":
+                imu_reason = found
             if stream in SENSOR_STREAMS:
                 hint = (" (normal for a vehicle that is not fixed-wing)"
                         if stream == "airspeed" and vehicle_type not in FIXED_WING_MAV_TYPES else "")
@@ -153,17 +173,17 @@ def flightlog_from_ulog(ulog: ULog, *, source: str, sha256: str = "", notes: Seq
         streams[stream] = frame[[*STREAM_COLUMNS[stream], *optional]]
     if "imu" not in streams or len(streams["imu"]) < 2:
         raise InputError("no IMU data: the log needs at least two sensor_combined samples with finite "
-                         "gyro_rad and accelerometer_m_s2" + "".join(f"; {note}" for note in file_notes),
-                         source=source, field="sensor_combined")
+                         "gyro_rad and accelerometer_m_s2" + "".join(f"; {note}" for note in file_notes)
+                         + (f" ({imu_reason})" if imu_reason else ""), source=source, field="sensor_combined")
 
     imu_time_s = streams["imu"].index.to_numpy()
     meta = LogMetadata(
         source=source,
         sha256=sha256,
         vehicle_type=vehicle_type,
-        hardware=ulog.msg_info_dict.get("ver_hw"),
-        px4_version=firmware_version(ulog),
-        ver_data_format=ulog.msg_info_dict.get("ver_data_format"),
+        hardware=info.get("ver_hw"),
+        px4_version=firmware_version(ulog, info),
+        ver_data_format=info.get("ver_data_format"),
         start_time_s=float(imu_time_s[0]),
         end_time_s=float(imu_time_s[-1]),
         duration_s=float(imu_time_s[-1] - imu_time_s[0]),
@@ -175,29 +195,20 @@ def flightlog_from_ulog(ulog: ULog, *, source: str, sha256: str = "", notes: Seq
     return FlightLog(streams=streams, meta=meta)
 
 
-def firmware_version(ulog: ULog) -> str | None:
-    """Firmware as ``"v1.14.0"`` (tagged release), ``"v1.15.0 dev (cb09dde6)"`` or the bare git hash."""
-    git_hash = str(ulog.msg_info_dict.get("ver_sw", ""))[:8]
-    if not ulog.msg_info_dict.get("ver_sw_release"):
+def firmware_version(ulog: ULog, info: dict | None = None) -> str | None:
+    """Firmware as ``"v1.14.0"`` (tagged release), ``"v1.15.0 dev (cb09dde6)"`` or the bare git hash.
+
+    ``info`` is the log's info with checked types (default ``ulog.msg_info_dict``).
+    """
+    info = ulog.msg_info_dict if info is None else info
+    git_hash = str(info.get("ver_sw", ""))[:8]
+    if not info.get("ver_sw_release"):
         return git_hash or None
     release = ulog.get_version_info_str()
     if release is not None:
         return release
     major, minor, patch, _ = ulog.get_version_info()
     return f"v{major}.{minor}.{patch} dev" + (f" ({git_hash})" if git_hash else "")
-
-
-def _parse(content: bytes, name: str) -> ULog:
-    """pyulog parse of the topics we use; pyulog's console chatter about corruption is dropped (reported
-    through ``file_corruption`` instead)."""
-    if not content.startswith(ULog.HEADER_BYTES):
-        raise InputError("not a PX4 ULog file: it does not start with the ULog header bytes", source=name)
-    try:
-        with contextlib.redirect_stdout(io.StringIO()):
-            return ULog(io.BytesIO(content), message_name_filter_list=list(ALL_TOPICS))
-    except (ULogException, struct.error, ValueError, IndexError, KeyError, OverflowError, TypeError,
-            UnicodeDecodeError) as exc:
-        raise InputError(f"not a readable PX4 ULog file ({exc})", source=name) from exc
 
 
 @njit(cache=True)
@@ -210,21 +221,70 @@ def _message_walk_end(content: np.ndarray, offset: int) -> int:
     return offset
 
 
-def _first_usable_topic(ulog: ULog, specs: tuple[TopicSpec, ...],
-                        warnings: list[str]) -> tuple[pd.DataFrame, TopicSpec, str] | str:
+def _numeric_parameters(raw: dict, warnings: list[str]) -> dict[str, float]:
+    """The parameters whose value is a finite number, as float; the others are dropped with one warning (a
+    damaged parameter message must not cost the whole log)."""
+    parameters, bad = {}, []
+    for key, value in raw.items():
+        number = float(value) if isinstance(value, numbers.Real) else float("nan")
+        if np.isfinite(number):
+            parameters[key] = number
+        else:
+            bad.append(str(key))
+    if bad:
+        warnings.append(f"dropped {len(bad)} parameters whose value is not a finite number (damaged "
+                        f"parameter messages): {', '.join(bad[:5])}" + (", ..." if len(bad) > 5 else ""))
+    return parameters
+
+
+def _vehicle_type(raw: dict, parameters: dict[str, float], warnings: list[str]) -> int | None:
+    """MAV_TYPE as an int; None without one or when it is not a number."""
+    if "MAV_TYPE" in parameters:
+        return int(parameters["MAV_TYPE"])
+    if "MAV_TYPE" in raw:
+        warnings.append(f"MAV_TYPE is not a number ({raw['MAV_TYPE']!r:.40}): vehicle type unknown")
+    return None
+
+
+#: Info fields the reader uses and the types they must have.
+_INFO_TYPES: dict[str, tuple[type, ...]] = {"ver_hw": (str,), "ver_sw": (str,), "ver_sw_release": (int,),
+                                            "ver_data_format": (int,)}
+
+
+def _typed_info(ulog: ULog, warnings: list[str]) -> dict:
+    """The info fields the reader uses that have their expected type (a damaged info message can carry any
+    type); ``ver_sw_release`` must be a uint32."""
+    info = {}
+    for key, types in _INFO_TYPES.items():
+        value = ulog.msg_info_dict.get(key)
+        if value is None:
+            continue
+        ok = isinstance(value, types) and not isinstance(value, bool)
+        if ok and key == "ver_sw_release":
+            ok = 0 <= value < 2**32
+        if ok:
+            info[key] = value
+        else:
+            warnings.append(f"info {key} has an unexpected value ({value!r:.40}); ignored")
+    return info
+
+
+def _first_usable_topic(ulog: ULog, specs: tuple[TopicSpec, ...], warnings: list[str],
+                        imu_span_s: tuple[float, float] | None = None) -> tuple[pd.DataFrame, TopicSpec, str] | str:
     """``(frame, spec, topic label)`` from the first topic of ``specs`` with the required fields and samples,
-    else why each topic was not used."""
+    else why each topic was not used. Rows further than ``TIME_BASE_SPLIT_S`` outside ``imu_span_s`` (first
+    and last IMU time [s]) are dropped: the log's time base is the IMU's."""
     reasons = []
     for spec in specs:
         instances = {d.multi_id: d for d in ulog.data_list if d.name == spec.topic}
         if not instances:
             reasons.append(f"{spec.topic}: not in the log")
             continue
-        multi_id = 0 if 0 in instances else max(instances, key=lambda i: len(instances[i].data["timestamp"]))
+        multi_id = 0 if 0 in instances else max(instances, key=lambda i: len(instances[i].data.get("timestamp", ())))
         label = spec.topic if len(instances) == 1 and multi_id == 0 else f"{spec.topic}[{multi_id}]"
         if multi_id != 0:
             warnings.append(f"{spec.topic}: instance 0 has no data; using instance {multi_id} (most samples)")
-        frame = _topic_frame(instances[multi_id].data, spec, label, ulog.start_timestamp, warnings)
+        frame = _topic_frame(instances[multi_id].data, spec, label, ulog.start_timestamp, warnings, imu_span_s)
         if isinstance(frame, str):
             reasons.append(f"{label}: {frame}")
         elif len(frame) == 0:
@@ -235,9 +295,13 @@ def _first_usable_topic(ulog: ULog, specs: tuple[TopicSpec, ...],
 
 
 def _topic_frame(data: dict[str, np.ndarray], spec: TopicSpec, label: str, start_us: int,
-                 warnings: list[str]) -> pd.DataFrame | str:
+                 warnings: list[str], imu_span_s: tuple[float, float] | None = None) -> pd.DataFrame | str:
     """Canonical columns of one topic, indexed by strictly increasing ``time_s``; or, when a required field
-    is missing or no timestamp is set, the reason."""
+    is missing, no timestamp is set or the timestamps are hopeless, the reason. ``imu_span_s``: first and
+    last IMU time [s], which bound the other topics' times."""
+    if "timestamp" not in data:  # only a damaged format lacks it
+        warnings.append(f"{label}: no timestamp field; topic skipped")
+        return "no timestamp field"
     columns: dict[str, np.ndarray] = {}
     for field in spec.fields:
         raw_and_scale = next(((data[px4], scale) for px4, scale, kinds in field.sources
@@ -267,20 +331,58 @@ def _topic_frame(data: dict[str, np.ndarray], spec: TopicSpec, label: str, start
         if not has_sample.any():
             return f"no valid samples ({spec.time_relative} marks every row invalid)"
         time_us = time_us + np.where(has_sample, relative_us, 0)
+    span_us = None if imu_span_s is None else (round(imu_span_s[0] / US_TO_S), round(imu_span_s[1] / US_TO_S))
     rows = _increasing_time_rows(time_us, has_sample, start_us, label, warnings,
-                                 repeats_expected=spec.time_relative is not None)
+                                 repeats_expected=spec.time_relative is not None, span_us=span_us)
+    if isinstance(rows, str):
+        warnings.append(f"{label}: {rows}; topic skipped")
+        return rows
     index = pd.Index(time_us[rows] * US_TO_S, name="time_s")
-    return pd.DataFrame({column: values[rows] for column, values in columns.items()}, index=index)
+    frame = pd.DataFrame({column: values[rows] for column, values in columns.items()}, index=index)
+    if "sample_time_s" in frame.columns:
+        _drop_implausible_sample_times(frame, label, warnings)
+    return frame
+
+
+def _drop_implausible_sample_times(frame: pd.DataFrame, label: str, warnings: list[str]) -> None:
+    """Set to NaN (in place) the sensor sample times further than ``MAX_SAMPLE_LAG_S`` from their row time."""
+    sample_time_s = frame["sample_time_s"].to_numpy()
+    far = np.abs(sample_time_s - frame.index.to_numpy()) > MAX_SAMPLE_LAG_S
+    if far.any():
+        warnings.append(f"{label}: {int(np.count_nonzero(far))} timestamp_sample values more than "
+                        f"{MAX_SAMPLE_LAG_S:.0f} s from their row time (corrupt) set to NaN")
+        frame.loc[far, "sample_time_s"] = np.nan
 
 
 def _increasing_time_rows(time_us: np.ndarray, has_sample: np.ndarray, start_us: int, label: str,
-                          warnings: list[str], *, repeats_expected: bool) -> np.ndarray:
+                          warnings: list[str], *, repeats_expected: bool,
+                          span_us: tuple[int, int] | None = None) -> np.ndarray | str:
     """Indices of the rows that give strictly increasing times: rows with time 0 or before the log start
-    ``start_us`` are dropped, rows out of order are sorted, and of rows with equal times the first logged is
-    kept."""
+    ``start_us`` are dropped, so are rows more than ``TIME_BASE_SPLIT_S`` outside ``span_us`` (the IMU's first
+    and last time [us]) and rows whose time jumps far from the rest (:func:`_time_outliers`); rows out of
+    order are sorted, and of rows with equal times the first logged is kept. A topic without a consistent time
+    base gives the reason instead."""
     is_zero = has_sample & (time_us == 0)
     is_early = has_sample & ~is_zero & (time_us < start_us)
-    candidates = np.flatnonzero(has_sample & ~is_zero & ~is_early)
+    is_outside = np.zeros(len(time_us), dtype=bool)
+    if span_us is not None:
+        margin_us = round(TIME_BASE_SPLIT_S / US_TO_S)
+        is_outside = (has_sample & ~is_zero & ~is_early
+                      & ((time_us < span_us[0] - margin_us) | (time_us > span_us[1] + margin_us)))
+        if is_outside.any():
+            warnings.append(f"{label}: dropped {int(np.count_nonzero(is_outside))} rows timed more than "
+                            f"{TIME_BASE_SPLIT_S:.0f} s outside the IMU's span (corrupt timestamps)")
+    candidates = np.flatnonzero(has_sample & ~is_zero & ~is_early & ~is_outside)
+    outliers = _time_outliers(time_us[candidates])
+    if isinstance(outliers, str):
+        return outliers
+    if outliers.any():
+        kept = time_us[candidates[~outliers]]
+        jump_s = np.abs(time_us[candidates[outliers]] - np.clip(time_us[candidates[outliers]], kept.min(),
+                                                                kept.max())).max() * US_TO_S
+        warnings.append(f"{label}: dropped {int(np.count_nonzero(outliers))} rows whose timestamps jump up to "
+                        f"{jump_s:.3g} s away from the rest of the topic (corrupt timestamps)")
+        candidates = candidates[~outliers]
     n_unsorted = int(np.count_nonzero(np.diff(time_us[candidates]) < 0))
     order = candidates[np.argsort(time_us[candidates], kind="stable")] if n_unsorted else candidates
     keep = np.ones(len(order), dtype=bool)
@@ -296,6 +398,46 @@ def _increasing_time_rows(time_us: np.ndarray, has_sample: np.ndarray, start_us:
     if n_repeated and not repeats_expected:
         warnings.append(f"{label}: dropped {n_repeated} rows repeating an earlier timestamp")
     return order[keep]
+
+
+def _time_outliers(time_us: np.ndarray) -> np.ndarray | str:
+    """Mask of the rows of one topic (``time_us`` [us] in logged order) whose time is corrupt, or why the topic
+    has no consistent time base.
+
+    On the sorted times, a group of at most ``OUTLIER_RUN_ROWS`` rows (and a tenth of the topic) cut off by
+    gaps above max(``OUTLIER_GAP_MIN_S``, ``OUTLIER_GAP_FACTOR`` x the median spacing) is an outlier (a single
+    corrupt timestamp lands alone, far from its neighbours); then gaps above ``TIME_BASE_SPLIT_S`` split the
+    rest into parts of which the largest is kept, and a largest part with under half the rows is hopeless.
+    A logger pause shifts every later row alike and leaves large groups on both sides, so it is kept.
+    """
+    n = len(time_us)
+    outliers = np.zeros(n, dtype=bool)
+    if n < OUTLIER_MIN_ROWS:
+        return outliers
+    gaps_us = np.diff(time_us)
+    order = None if (gaps_us >= 0).all() else np.argsort(time_us, kind="stable")
+    sorted_us = time_us if order is None else time_us[order]
+    if order is not None:
+        gaps_us = np.diff(sorted_us)
+    limit_us = max(OUTLIER_GAP_MIN_S / US_TO_S, OUTLIER_GAP_FACTOR * float(np.median(gaps_us)))
+    if gaps_us.max() <= min(limit_us, TIME_BASE_SPLIT_S / US_TO_S):  # the common case: nothing far away
+        return outliers
+    group = np.concatenate(([0], np.cumsum(gaps_us > limit_us)))
+    size = np.bincount(group)[group]
+    bad = (size <= OUTLIER_RUN_ROWS) & (10 * size <= n)
+    rest_us = sorted_us[~bad]
+    part = np.concatenate(([0], np.cumsum(np.diff(rest_us) > TIME_BASE_SPLIT_S / US_TO_S)))
+    part_size = np.bincount(part)
+    largest = int(np.argmax(part_size))
+    if 2 * part_size[largest] < n:
+        span_s = float(sorted_us[-1] - sorted_us[0]) * US_TO_S
+        return (f"no consistent time base: its timestamps scatter over {span_s:.3g} s, the largest consistent "
+                f"part holding {int(part_size[largest])} of {n} rows")
+    bad[np.flatnonzero(~bad)[part != largest]] = True
+    if order is None:
+        return bad
+    outliers[order] = bad
+    return outliers
 
 
 @dataclass(frozen=True)
@@ -321,7 +463,11 @@ def _finite_imu(frame: pd.DataFrame, ctx: _Context) -> pd.DataFrame:
 def _complete_baro(frame: pd.DataFrame, ctx: _Context) -> pd.DataFrame:
     """Fill the altitude from the pressure or the pressure from the altitude, whichever the topic lacks, with
     the ISA and the log's QNH (``SENS_BARO_QNH``), as PX4 computes ``baro_alt_meter``."""
-    qnh_pa = 100.0 * ctx.parameters.get("SENS_BARO_QNH", DEFAULT_QNH_HPA)
+    qnh_hpa = ctx.parameters.get("SENS_BARO_QNH", DEFAULT_QNH_HPA)
+    if not QNH_RANGE_HPA[0] <= qnh_hpa <= QNH_RANGE_HPA[1]:
+        ctx.warnings.append(f"SENS_BARO_QNH {qnh_hpa:g} hPa is implausible; {DEFAULT_QNH_HPA} hPa used")
+        qnh_hpa = DEFAULT_QNH_HPA
+    qnh_pa = 100.0 * qnh_hpa
     if "alt_m" not in frame.columns:
         return frame.assign(alt_m=pressure_altitude_m(frame["pressure_pa"].to_numpy(), qnh_pa))
     pressure_pa = frame["pressure_pa"].to_numpy()

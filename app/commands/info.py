@@ -1,5 +1,6 @@
-"""``solarnav info LOG.ulg [--sun SUN.csv] [--device DEV.json] [--json]``: a flight log's streams, rates, gaps
-and warnings."""
+"""``solarnav info LOG.ulg [--sun SUN.csv] [--device DEV.json] [--json]``: a flight log's streams, rates, gaps,
+warnings and input quality findings (what the estimators refuse or flag, docs/estimators.md, 'Inputs the
+estimators refuse')."""
 
 from __future__ import annotations
 
@@ -10,6 +11,7 @@ import math
 
 from ingest.errors import InputError
 from ingest.flightlog import FlightLog
+from ingest.quality import assess_input_quality
 from ingest.sun_log import load_sun_device, with_sun
 from ingest.ulog_reader import load_flight_log
 
@@ -40,7 +42,8 @@ def run(args: argparse.Namespace) -> int:
 
 
 def info_dict(log: FlightLog) -> dict:
-    """The log's metadata as JSON-ready data (parameters left out; NaN as None)."""
+    """The log's metadata as JSON-ready data (parameters left out; NaN as None), with ``input_quality``: one dict
+    per :class:`~ingest.quality.QualityFinding` (kind, severity, stream, message, value, threshold, unit)."""
     meta = log.meta
     has_utc = meta.utc_offset_s is not None
     return _nan_to_none({
@@ -61,11 +64,13 @@ def info_dict(log: FlightLog) -> dict:
                     for name, info in meta.streams.items()},
         "sun_device": dataclasses.asdict(meta.sun_device) if meta.sun_device is not None else None,
         "warnings": meta.warnings,
+        "input_quality": [dataclasses.asdict(finding) for finding in assess_input_quality(log)],
     })
 
 
 def format_info(log: FlightLog) -> str:
-    """Human-readable summary: header lines, one row per stream, then the warnings."""
+    """Human-readable summary: header lines, one row per stream, the warnings, then the input quality findings
+    (``REFUSED`` ones stop a replay without ``--force``)."""
     meta = log.meta
     vehicle = "fixed-wing" if meta.is_fixed_wing else "not fixed-wing"
     utc = ("none (no GPS time in the log)" if meta.utc_offset_s is None
@@ -94,6 +99,10 @@ def format_info(log: FlightLog) -> str:
                   f"{', '.join(f'{a:g}' for a in device.mount_rpy_deg)} deg"]
     if meta.warnings:
         lines += ["", "warnings:", *(f"  - {warning}" for warning in meta.warnings)]
+    findings = assess_input_quality(log)
+    lines += ["", "input quality: " + ("no finding" if not findings else
+                                       f"{len(findings)} finding{'s' if len(findings) > 1 else ''}")]
+    lines += [f"  - {'REFUSED' if f.severity == 'refuse' else 'flagged'}: {f.message}" for f in findings]
     return "\n".join(lines)
 
 

@@ -1,6 +1,10 @@
 """``solarnav replay LOG.ulg [--sun SUN.csv] [--device DEV.json] [--calib CALIB.json] [--estimators a,b,c]
-[--rate-hz 50] [--heading mag|sun|mag+sun] -o OUT.parquet|OUT.csv [--diagnostics DIAG.parquet|DIAG.csv]``:
-re-run the estimators on a log and write their states (one row per estimator per output epoch)."""
+[--rate-hz 50] [--heading mag|sun|mag+sun] [--force] -o OUT.parquet|OUT.csv [--diagnostics DIAG.parquet|DIAG.csv]``:
+re-run the estimators on a log and write their states (one row per estimator per output epoch).
+
+A log whose inputs cannot give a trustworthy estimate (IMU too slow or with long gaps, clipping accelerometer) is
+refused with the reason (exit status 2) unless ``--force`` is given; then, and for every flagged finding, the
+summary and each report carry the warning."""
 
 from __future__ import annotations
 
@@ -12,7 +16,14 @@ import pandas as pd
 import pyarrow
 import pyarrow.csv
 
-from estimators.api import DEFAULT_ESTIMATORS, ESTIMATORS, ReplayResult, parse_estimator_names, run_estimators
+from estimators.api import (
+    DEFAULT_ESTIMATORS,
+    ESTIMATORS,
+    ReplayResult,
+    parse_estimator_names,
+    quality_warnings,
+    run_estimators,
+)
 from estimators.config import EstimatorConfig, config_from_calibration
 from estimators.consistency import turbulence_intensity_m_s
 from estimators.inputs.records import HEADING_SOURCES
@@ -38,6 +49,8 @@ def add_parser(subparsers) -> None:
     parser.add_argument("--rate-hz", type=float, default=50.0, metavar="HZ", help="output rate (default 50 Hz)")
     parser.add_argument("--heading", choices=HEADING_SOURCES, default="mag",
                         help="absolute heading source (default mag; sun needs --sun)")
+    parser.add_argument("--force", action="store_true",
+                        help="replay even a log whose inputs are refused (every report carries the warning)")
     parser.add_argument("-o", "--output", required=True, metavar="OUT.parquet|OUT.csv", help="states file")
     parser.add_argument("--diagnostics", metavar="DIAG.parquet|DIAG.csv",
                         help="also write one row per measurement update (innovation, variance, NIS, accepted)")
@@ -62,7 +75,7 @@ def run(args: argparse.Namespace) -> int:
         device = load_sun_device(args.device) if args.device is not None else None
         log = with_sun(log, args.sun, device=device)
     result = run_estimators(log, estimators=names, config=config, configs=configs, heading=args.heading,
-                            rate_hz=args.rate_hz)
+                            rate_hz=args.rate_hz, allow_untrusted=args.force)
     write_table(result.states, outputs[0])
     if args.diagnostics is not None:
         write_table(result.diagnostics, outputs[1])
@@ -97,10 +110,11 @@ def write_table(frame: pd.DataFrame, path: Path) -> Path:
 
 
 def format_summary(result: ReplayResult, outputs: list[Path]) -> str:
-    """One line per estimator (epochs, sensors used, resets, kernel time, turbulence intensity), its degradations,
-    the calibrated figures it used or ignored, its warnings (inconsistent channels among them) and the files
-    written."""
-    lines = []
+    """The input quality findings first (a refused one replayed with ``--force`` as ``UNTRUSTED INPUT``), then one
+    line per estimator (epochs, sensors used, resets, kernel time, turbulence intensity), its degradations, the
+    calibrated figures it used or ignored, its warnings (inconsistent channels among them) and the files written."""
+    shown = quality_warnings(result.input_quality)  # once at the top, not again under each estimator
+    lines = [f"WARNING: {warning}" for warning in shown]
     for name, report in result.reports.items():
         states = result.states[result.states["estimator"] == name]
         skipped = ", ".join(f"{k} ({v})" for k, v in report.skipped.items()) or "none"
@@ -111,6 +125,6 @@ def format_summary(result: ReplayResult, outputs: list[Path]) -> str:
         lines += [f"  degraded: {d}" for d in report.degradations]
         lines += [f"  calibration: {item['figure']} [{item['source']}]: {item['use']}"
                   for item in report.details.get("calibration", [])]
-        lines += [f"  WARNING: {w}" for w in report.warnings]
+        lines += [f"  WARNING: {w}" for w in report.warnings if w not in shown]
     lines += [f"wrote {p}" for p in outputs]
     return "\n".join(lines)

@@ -39,6 +39,8 @@ def run(args: argparse.Namespace) -> int:
     log = with_sun(log, args.sun, device=device, time_offset_s=args.sun_time_offset_s)
     table = sun_vector_table(log)
     write_table(table, output)
+    for warning in log.meta.warnings:  # e.g. a sun CSV whose cut-off last line was dropped
+        print(f"WARNING: {warning}")
     print(format_summary(table, output))
     return 0
 

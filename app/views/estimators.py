@@ -5,7 +5,7 @@ import pandas as pd
 import streamlit as st
 
 from app import adapters, comparison, figures, runs, session, tables
-from estimators.api import DEFAULT_ESTIMATORS, ESTIMATORS
+from estimators.api import DEFAULT_ESTIMATORS, ESTIMATORS, UNTRUSTED_PREFIX
 from estimators.inputs.records import HEADING_SOURCES
 
 RUN_KEY = "est_run"
@@ -15,6 +15,17 @@ log = session.require_log()
 root, sha256 = session.root(), session.selected_sha256()
 workspace = session.workspace()
 st.title(f"Estimators: {log.meta.source}")
+
+# ------------------------------------------------------------------ input quality (docs/estimators.md, 'Inputs the
+# estimators refuse'): refused inputs stop a run unless the form's override is ticked
+findings = adapters.input_quality(root, sha256)
+refused = [finding for finding in findings if finding["severity"] == "refuse"]
+for finding in refused:
+    st.error(f"**Refused input**: {finding['message']}. The estimators do not run on this log unless "
+             "*Run despite refused inputs* is ticked; every report then carries the warning.")
+for finding in findings:
+    if finding["severity"] != "refuse":
+        st.warning(f"**Flagged input**: {finding['message']}")
 
 # ------------------------------------------------------------------ run form
 saved = list(workspace.list_calibrations(sha256)["calib_id"])
@@ -28,9 +39,12 @@ with st.form("run_form"):
     heading = left.radio("Heading aid", headings, format_func=HEADING_LABELS.get, horizontal=True,
                          key="est_heading", help=None if log.has("sun") else "the log has no sun-device data")
     noise = right.radio("Measurement noise", list(noise_labels), format_func=noise_labels.get, key="est_noise")
+    force = st.checkbox("Run despite refused inputs", value=False, key="est_force", disabled=not refused,
+                        help="replay a log whose inputs the estimators refuse (solarnav replay --force)")
     submitted = st.form_submit_button("Run estimators", type="primary")
 if submitted:
-    settings = runs.RunSettings(estimators=tuple(chosen), heading=heading, noise=noise)
+    settings = runs.RunSettings(estimators=tuple(chosen), heading=heading, noise=noise,
+                                allow_untrusted=bool(force and refused))
     run_id = runs.find_run(workspace, sha256, settings)
     if run_id is None:
         bar = st.progress(0.0, text="Preparing ...")
@@ -57,6 +71,9 @@ run_id = st.selectbox("Run", list(labels), format_func=labels.get, key=RUN_KEY)
 report = adapters.run_report(root, run_id)
 result = adapters.run_comparison(root, sha256, run_id)
 
+untrusted = dict.fromkeys(w for facts in report.values() for w in facts["warnings"] if w.startswith(UNTRUSTED_PREFIX))
+for warning in untrusted:  # a forced run's refused inputs, once for all estimators, never collapsed
+    st.error(warning)
 for name, facts in report.items():
     # inconsistent channels of a calibrated run are never hidden in the collapsed details
     for warning in facts["warnings"]:

@@ -7,6 +7,9 @@ import streamlit as st
 from app import adapters, session, tables
 from app.workspace import sanitize_name
 
+#: Session-state key of the reader warnings of the upload just stored, shown after the rerun that opens it.
+UPLOAD_WARNINGS_KEY = "_upload_warnings"
+
 st.title("solarnav")
 st.write("Upload a PX4 ULog (and optionally the sun-device log), check its streams, calibrate the sensors' noise "
          "from the flight itself, then re-run three EKFs and compare them with the autopilot and the truth.")
@@ -30,6 +33,9 @@ if sha256 is not None:
         links[3].page_link("views/sun.py", label="Sun vector", icon=":material/wb_sunny:")
 
 st.subheader("Upload a flight")
+# warnings of the upload just stored: kept across the rerun that opens it (as `solarnav info` prints them)
+for warning in st.session_state.pop(UPLOAD_WARNINGS_KEY, ()):
+    st.warning(warning)
 limit_mb = st.get_option("server.maxUploadSize")
 with st.form("upload", clear_on_submit=True):
     ulog_file = st.file_uploader(f"PX4 ULog (.ulg, up to {limit_mb} MB)", type=["ulg"], key="upload_ulog")
@@ -45,9 +51,11 @@ if submitted:
         device_json = device_file.getvalue() if device_file else None
         name = sanitize_name(ulog_file.name)
         with session.input_errors(stop=False):  # nothing is stored unless every file is usable
-            adapters.validate_upload(content, name, sun_csv, device_json)
+            uploaded = adapters.validate_upload(content, name, sun_csv, device_json)
             known = workspace.get_log(hashlib.sha256(content).hexdigest())
             entry = workspace.add_log(content, name, sun_csv=sun_csv, device_json=device_json)
+            st.session_state[UPLOAD_WARNINGS_KEY] = [f"{entry.display_name}: {warning}"
+                                                     for warning in uploaded.meta.warnings]
             if known is not None:
                 st.toast(f"{name} is already in the workspace (added {known.added_utc} as {known.display_name}).")
             session.open_log(entry.sha256)

@@ -1,5 +1,6 @@
 """Overview: what the log holds (vehicle, firmware, duration, streams, gaps, warnings), what it lacks and why that
-matters, and the flight itself (track in local NED, altitude and flight phases)."""
+matters, what of it the estimators refuse or flag (input quality), and the flight itself (track in local NED,
+altitude and flight phases)."""
 
 import streamlit as st
 
@@ -30,6 +31,11 @@ others_missing = missing[~missing["stream"].isin(tables.SENSOR_STREAMS)]
 if len(others_missing):
     st.info("Not in this log:\n" + "\n".join(f"- **{row.stream}**: no {row.consequence}"
                                              for row in others_missing.itertuples()))
+for finding in adapters.input_quality(session.root(), session.selected_sha256()):
+    if finding["severity"] == "refuse":
+        st.error(f"**Refused input** (the estimators do not run on it unless forced): {finding['message']}")
+    else:
+        st.warning(f"**Flagged input**: {finding['message']}")
 if meta.warnings:
     with st.expander(f"Reader warnings ({len(meta.warnings)})", expanded=len(meta.warnings) <= 3):
         for warning in meta.warnings:

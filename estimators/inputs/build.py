@@ -75,6 +75,11 @@ GPS_DEFAULT_EPH_M = 2.5
 BARO_OFFSET_WINDOW_S = 10.0
 #: Decimal year used for the magnetic model when a log carries no UTC time.
 FALLBACK_DECIMAL_YEAR = 2020.0
+#: Output/pseudo epochs allowed per IMU sample, plus a fixed allowance: more means the log's time axis is far
+#: longer than its data (corrupt timestamps, docs/robustness.md, 'Time base checks'), and np.arange would
+#: allocate without bound.
+MAX_EPOCHS_PER_IMU_SAMPLE = 10
+MAX_EPOCHS_FIXED = 1_000_000
 
 
 def build_replay_inputs(flight_log: FlightLog, config: EstimatorConfig | None = None, *, rate_hz: float = 50.0,
@@ -114,6 +119,7 @@ def build_replay_inputs(flight_log: FlightLog, config: EstimatorConfig | None = 
     warnings: list[str] = []
     imu = _imu_samples(flight_log, config, warnings)
     t_start, t_end = float(imu.time_s[0]), float(imu.time_s[-1])
+    _check_epoch_count(t_start, t_end, max(rate_hz, config.timing.pseudo_rate_hz), len(imu.time_s), source)
     fixed_wing = bool(flight_log.meta.is_fixed_wing)
     if flight_log.meta.vehicle_type is None:
         warnings.append("MAV_TYPE missing: multicopter assumptions (no fixed-wing pseudo-measurements)")
@@ -485,6 +491,15 @@ def _sun_events(observations: pd.DataFrame, source: str):
     variances = np.zeros((len(time_s), 2))
     variances[:, 0] = variances[:, 1] = data[:, 6] ** 2
     return time_s, SUN, data[:, :6], variances
+
+
+def _check_epoch_count(t_start: float, t_end: float, rate_hz: float, n_imu: int, source: str) -> None:
+    """Raise InputError when epochs at ``rate_hz`` [Hz] over [t_start, t_end] [s] would far outnumber the
+    ``n_imu`` IMU samples (a defence: ingest drops corrupt timestamps, docs/robustness.md, 'Time base checks')."""
+    n_epochs = (t_end - t_start) * rate_hz
+    if not n_epochs <= MAX_EPOCHS_PER_IMU_SAMPLE * n_imu + MAX_EPOCHS_FIXED:
+        raise InputError(f"the IMU time axis spans {t_end - t_start:.6g} s for only {n_imu} samples: {n_epochs:.3g} "
+                         f"epochs at {rate_hz:g} Hz is implausible (corrupt timestamps)", source=source, field="imu")
 
 
 def _pseudo_times(t_start: float, t_end: float, rate_hz: float) -> np.ndarray:
