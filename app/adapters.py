@@ -16,7 +16,6 @@ import dataclasses
 import hashlib
 import json
 import tempfile
-from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -328,16 +327,6 @@ def run_calibration(root: str, sha256: str, noise: str) -> Calibration | None:
     if noise == runs.AUTO_CALIBRATION:
         return calibration(root, sha256, None, (), "sigma")
     return read_calibration(open_workspace(root).calibration_path(noise))
-
-
-def run_file(root: str, run_id: str, table: str, suffix: str) -> Callable[[], bytes]:
-    """A callable producing a stored run's ``states`` / ``diagnostics`` as Parquet or CSV bytes, for a lazy
-    download button (nothing is converted until the user clicks)."""
-    def produce() -> bytes:
-        path = open_workspace(root).run_table_path(run_id, table)
-        return path.read_bytes() if suffix == "parquet" else pd.read_parquet(path).to_csv(index=False).encode()
-
-    return produce
 
 
 # ---------------------------------------------------------------------------------------------------- sun vector

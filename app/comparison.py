@@ -5,12 +5,14 @@ NIS summaries of the measurement updates. Pure pandas / NumPy (no Streamlit), te
 
 from __future__ import annotations
 
+import io
 from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
 from scipy import stats
 
+from app.figures import TimeBase
 from estimators.environment import geodetic_to_ned
 from ingest import FlightLog
 from ingest.frames import wrap_angle_deg
@@ -219,3 +221,16 @@ def moving_nis(diagnostics: pd.DataFrame, window: int) -> pd.DataFrame:
         parts.append(pd.DataFrame({"time_s": frame["time_s"].to_numpy(float), "component": str(component),
                                    "mean_nis": nis.to_numpy(float)}).dropna())
     return pd.concat(parts, ignore_index=True) if parts else pd.DataFrame(columns=["time_s", "component", "mean_nis"])
+
+
+def table_download(frame: pd.DataFrame, time_base: TimeBase, suffix: str) -> bytes:
+    """A run's ``states`` / ``diagnostics`` as Parquet or CSV bytes for a download: the log-clock ``time_s`` kept,
+    ``time_since_start_s`` (:data:`app.figures.SINCE_START_COLUMN`) added after it."""
+    out = time_base.with_since_start(frame)
+    if suffix == "csv":
+        return out.to_csv(index=False).encode()
+    if suffix != "parquet":
+        raise ValueError(f"unknown download format {suffix!r} (csv or parquet)")
+    buffer = io.BytesIO()
+    out.to_parquet(buffer, index=False)
+    return buffer.getvalue()

@@ -21,6 +21,7 @@ pages = [
     st.Page("views/overview.py", title="Overview", icon=":material/flight:"),
     st.Page("views/calibration.py", title="Calibration", icon=":material/tune:"),
     st.Page("views/estimators.py", title="Estimators", icon=":material/compare_arrows:"),
+    st.Page("views/map.py", title="Map", icon=":material/map:"),
     st.Page("views/sun.py", title="Sun vector", icon=":material/wb_sunny:"),
 ]
 st.navigation(pages).run()

@@ -1,12 +1,17 @@
 """Pure plotly figure builders for the dashboard (no Streamlit), tested directly.
 
-Every time trace is downsampled for display with MinMaxLTTB (``tsdownsample``) to at most :data:`MAX_POINTS`
-points, so a 1-hour 250 Hz log draws as fast as a short one; every axis title carries its unit.
+Time axes read seconds since the log start (:class:`TimeBase`, the first IMU sample): the log clock and UTC stay
+on hover. Every time figure takes the page's shared time ``window`` [s since start]: its series are sliced to the
+window at full resolution and only then downsampled with MinMaxLTTB (``tsdownsample``) to at most
+:data:`MAX_POINTS` points, so a 1-hour 250 Hz log draws as fast as a short one and a narrow window shows the single
+samples; the y axes autorange on the sliced data. Angles in [-180, 180) are broken at their wrap-arounds instead
+of drawing vertical lines. Every axis title carries its unit.
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Collection, Mapping, Sequence
+from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
@@ -14,10 +19,20 @@ import plotly.graph_objects as go
 from plotly.subplots import make_subplots
 from tsdownsample import NaNMinMaxLTTBDownsampler
 
+from ingest import FlightLog
+
 #: Largest number of points drawn per trace.
 MAX_POINTS = 2000
-#: Title of every time axis: the log clock (PX4 ``timestamp`` / 1e6).
-TIME_TITLE = "time [s] (log clock)"
+#: Title of every time axis of the pages: seconds since the log start (:class:`TimeBase`).
+TIME_TITLE = "time since log start [s]"
+#: Title of a time axis on the raw log clock (PX4 ``timestamp`` / 1e6), for figures drawn without a time base.
+LOG_CLOCK_TITLE = "time [s] (log clock)"
+#: Column added to downloads next to the log-clock ``time_s``.
+SINCE_START_COLUMN = "time_since_start_s"
+#: A jump larger than this between consecutive samples of an angle in [-180, 180) deg is a wrap-around.
+WRAP_JUMP_DEG = 180.0
+#: Angle columns (deg, wrapped to [-180, 180)) whose traces are broken at the wrap-arounds.
+ANGLE_COLUMNS = ("roll_deg", "pitch_deg", "yaw_deg", "course_deg", "azimuth_deg")
 #: One colour per data source, the same on every page.
 SOURCE_COLORS = {
     "three_stage": "#1f77b4", "full_state_direct": "#ff7f0e", "full_state_indirect": "#2ca02c",
@@ -27,6 +42,97 @@ SOURCE_COLORS = {
 PHASE_COLORS = {"stationary": "rgba(44,160,44,0.12)", "steady cruise": "rgba(31,119,180,0.12)",
                 "manoeuvring": "rgba(255,127,14,0.10)"}
 _DOWNSAMPLER = NaNMinMaxLTTBDownsampler()
+
+Window = tuple[float, float]
+
+
+# ---------------------------------------------------------------------------------------------------- time axis
+@dataclass(frozen=True)
+class TimeBase:
+    """How the pages show time: seconds since the log start on the axes, log clock and UTC on hover.
+
+    Attributes
+    ----------
+    start_s : float
+        Log-clock time of the log start [s] (:func:`log_start_s`).
+    utc_offset_s : float or None
+        UTC unix time = log clock + ``utc_offset_s`` (``LogMetadata.utc_offset_s``); None without GPS time.
+    """
+
+    start_s: float = 0.0
+    utc_offset_s: float | None = None
+
+    def since_start(self, time_s) -> np.ndarray:
+        """Seconds since the log start of log-clock times ``time_s`` [s]."""
+        return np.asarray(time_s, dtype=float) - self.start_s
+
+    def hover_labels(self, since_start_s) -> list[str]:
+        """Hover text of times [s since start]: the time since start, the log clock and UTC (when known)."""
+        since = np.asarray(since_start_s, dtype=float)
+        clock = since + self.start_s
+        labels = [f"t = {t:.3f} s since start, log clock {c:.3f} s" for t, c in zip(since, clock, strict=True)]
+        if self.utc_offset_s is None:
+            return labels
+        utc_ms = np.round((clock + self.utc_offset_s) * 1e3)  # whole milliseconds, not truncated float noise
+        utc = pd.to_datetime(utc_ms, unit="ms", utc=True).strftime("%Y-%m-%d %H:%M:%S.%f")
+        return [f"{label}, UTC {str(stamp)[:-3]}" for label, stamp in zip(labels, utc, strict=True)]
+
+    def shift(self, frame: pd.DataFrame, columns: Sequence[str]) -> pd.DataFrame:
+        """A copy of ``frame`` with the log-clock time ``columns`` [s] as seconds since the start."""
+        out = frame.copy()
+        for column in columns:
+            if column in out:
+                out[column] = self.since_start(out[column])
+        return out
+
+    def with_since_start(self, frame: pd.DataFrame, column: str = "time_s") -> pd.DataFrame:
+        """A copy of ``frame`` keeping its log-clock ``column`` and adding :data:`SINCE_START_COLUMN` after it
+        (for downloads)."""
+        out = frame.copy()
+        if column in out and SINCE_START_COLUMN not in out:
+            out.insert(out.columns.get_loc(column) + 1, SINCE_START_COLUMN, self.since_start(out[column]))
+        return out
+
+
+def log_start_s(log: FlightLog) -> float:
+    """The log start on the log clock [s]: the first IMU sample (``meta.start_time_s``), else the earliest first
+    sample of any stream, else 0."""
+    start = log.meta.start_time_s
+    if np.isfinite(start):
+        return float(start)
+    firsts = [float(frame.index[0]) for frame in log.streams.values() if len(frame)]
+    return min(firsts) if firsts else 0.0
+
+
+def time_base(log: FlightLog) -> TimeBase:
+    """The :class:`TimeBase` of a flight (its start and GPS UTC offset)."""
+    return TimeBase(start_s=log_start_s(log), utc_offset_s=log.meta.utc_offset_s)
+
+
+def time_span(log: FlightLog) -> Window:
+    """Range of a page's time-range control [s since start]: 0 to the log's duration (at least 0.01 s)."""
+    end = log.meta.end_time_s
+    duration = float(end) - log_start_s(log) if np.isfinite(end) else float(log.meta.duration_s)
+    return 0.0, max(duration, 0.01)
+
+
+def clamp_window(window: Sequence[float] | None, span: Window) -> Window:
+    """``window`` [s] clipped to ``span`` (the whole span when None or empty after clipping): a range kept in the
+    session state stays valid when another log is opened."""
+    if window is None or len(window) != 2:
+        return span
+    low, high = sorted(float(v) for v in window)
+    low, high = min(max(low, span[0]), span[1]), max(min(high, span[1]), span[0])
+    return (low, high) if high > low else span
+
+
+def window_slice(x: np.ndarray, window: Sequence[float] | None) -> slice:
+    """Slice of increasing ``x`` covering ``window`` plus one sample either side (lines reach the edges)."""
+    if window is None:
+        return slice(0, len(x))
+    low = int(np.searchsorted(x, window[0], side="left"))
+    high = int(np.searchsorted(x, window[1], side="right"))
+    return slice(max(0, low - 1), min(len(x), high + 1))
 
 
 def downsample_indices(x: np.ndarray, y: np.ndarray, max_points: int = MAX_POINTS) -> np.ndarray:
@@ -54,11 +160,56 @@ def downsample_indices(x: np.ndarray, y: np.ndarray, max_points: int = MAX_POINT
     return np.asarray(keep, dtype=np.int64)
 
 
-def line(x, y, name: str, *, max_points: int = MAX_POINTS, color: str | None = None, **kwargs) -> go.Scatter:
-    """A downsampled line trace of ``y(x)`` (``x`` increasing)."""
+def window_indices(x: np.ndarray, y: np.ndarray, window: Sequence[float] | None = None,
+                   max_points: int = MAX_POINTS) -> np.ndarray:
+    """Indices of the samples of ``y(x)`` to draw for ``window``: the full-resolution samples inside it (and one
+    either side) downsampled with :func:`downsample_indices` only when they exceed ``max_points``, so a narrow
+    window shows the raw samples."""
     x, y = np.asarray(x, float), np.asarray(y, float)
-    keep = downsample_indices(x, y, max_points)
-    return go.Scatter(x=x[keep], y=y[keep], name=name, mode="lines",
+    part = window_slice(x, window)
+    return part.start + downsample_indices(x[part], y[part], max_points)
+
+
+def break_wraps(x: np.ndarray, y: np.ndarray, jump: float = WRAP_JUMP_DEG) -> tuple[np.ndarray, np.ndarray]:
+    """``x``, ``y`` with a NaN point inserted (at the mid time) wherever ``|diff(y)| > jump``: an angle wrapping
+    from +180 to -180 deg is drawn as a broken line, not a vertical stroke across the axis."""
+    x, y = np.asarray(x, float), np.asarray(y, float)
+    with np.errstate(invalid="ignore"):
+        at = np.flatnonzero(np.abs(np.diff(y)) > jump)
+    if not len(at):
+        return x, y
+    return np.insert(x, at + 1, 0.5 * (x[at] + x[at + 1])), np.insert(y, at + 1, np.nan)
+
+
+def apply_time_range(fig: go.Figure, window: Sequence[float] | None) -> go.Figure:
+    """Show ``window`` [s] on every x axis of a time figure and let every y axis autorange (on the data sliced to
+    the window); the page applies the same window to all its time figures."""
+    if window is not None:
+        fig.update_xaxes(range=[float(window[0]), float(window[1])], autorange=False)
+    fig.update_yaxes(autorange=True)
+    return fig
+
+
+def line(x, y, name: str, *, max_points: int = MAX_POINTS, color: str | None = None,
+         time_base: TimeBase | None = None, window: Sequence[float] | None = None, wrap: bool = False,
+         **kwargs) -> go.Scatter:
+    """A downsampled line trace of ``y(x)`` (``x`` increasing, log clock [s]).
+
+    With a ``time_base`` the trace is drawn over seconds since the log start with the log clock and UTC on hover;
+    ``window`` [s, in the drawn unit] slices the samples before the downsampling; ``wrap`` breaks an angle in
+    [-180, 180) deg at its wrap-arounds (:func:`break_wraps`).
+    """
+    x, y = np.asarray(x, float), np.asarray(y, float)
+    if time_base is not None:
+        x = time_base.since_start(x)
+    keep = window_indices(x, y, window, max_points)
+    x, y = x[keep], y[keep]
+    if wrap:
+        x, y = break_wraps(x, y)
+    if time_base is not None:
+        kwargs.setdefault("customdata", time_base.hover_labels(x))
+        kwargs.setdefault("hovertemplate", f"{name}: %{{y:.4g}}<br>%{{customdata}}<extra></extra>")
+    return go.Scatter(x=x, y=y, name=name, mode="lines",
                       line={"color": color or SOURCE_COLORS.get(name), "width": 1.5}, **kwargs)
 
 
@@ -75,20 +226,26 @@ def base_layout(fig: go.Figure, *, x_title: str = TIME_TITLE, y_title: str, heig
 
 
 def time_series_figure(series: Mapping[str, pd.Series], y_title: str, *, title: str | None = None,
-                       max_points: int = MAX_POINTS) -> go.Figure:
-    """One downsampled line per named series (index: time [s])."""
-    fig = go.Figure([line(s.index.to_numpy(float), s.to_numpy(float), name, max_points=max_points)
+                       max_points: int = MAX_POINTS, time_base: TimeBase | None = None,
+                       window: Sequence[float] | None = None, wrap: bool = False) -> go.Figure:
+    """One downsampled line per named series (index: log clock [s]) over ``window`` [s]."""
+    fig = go.Figure([line(s.index.to_numpy(float), s.to_numpy(float), name, max_points=max_points,
+                          time_base=time_base, window=window, wrap=wrap)
                      for name, s in series.items() if len(s)])
-    return base_layout(fig, y_title=y_title, title=title)
+    base_layout(fig, x_title=TIME_TITLE if time_base is not None else LOG_CLOCK_TITLE, y_title=y_title,
+                title=title)
+    return apply_time_range(fig, window)
 
 
-def add_phase_bands(fig: go.Figure, phases: pd.DataFrame, *, max_bands: int = 200) -> go.Figure:
-    """Shade the flight phases (``phase``, ``start_s``, ``end_s``) behind the traces; the longest
-    ``max_bands`` only, so a log with many short phases stays fast to draw."""
+def add_phase_bands(fig: go.Figure, phases: pd.DataFrame, *, max_bands: int = 200,
+                    time_base: TimeBase | None = None) -> go.Figure:
+    """Shade the flight phases (``phase``, ``start_s``, ``end_s`` on the log clock) behind the traces; the
+    longest ``max_bands`` only, so a log with many short phases stays fast to draw."""
     shown = phases.nlargest(max_bands, "duration_s") if len(phases) > max_bands else phases
+    offset = time_base.start_s if time_base is not None else 0.0
     for row in shown.itertuples(index=False):
-        fig.add_vrect(x0=row.start_s, x1=row.end_s, fillcolor=PHASE_COLORS.get(row.phase, "rgba(0,0,0,0.05)"),
-                      line_width=0, layer="below")
+        fig.add_vrect(x0=row.start_s - offset, x1=row.end_s - offset,
+                      fillcolor=PHASE_COLORS.get(row.phase, "rgba(0,0,0,0.05)"), line_width=0, layer="below")
     for phase, color in PHASE_COLORS.items():  # legend entries for the bands
         if (shown["phase"] == phase).any():
             fig.add_trace(go.Scatter(x=[None], y=[None], mode="markers", name=phase,
@@ -96,22 +253,30 @@ def add_phase_bands(fig: go.Figure, phases: pd.DataFrame, *, max_bands: int = 20
     return fig
 
 
-def altitude_figure(altitudes: Mapping[str, pd.Series], phases: pd.DataFrame | None = None) -> go.Figure:
+def altitude_figure(altitudes: Mapping[str, pd.Series], phases: pd.DataFrame | None = None, *,
+                    time_base: TimeBase | None = None, window: Sequence[float] | None = None) -> go.Figure:
     """Altitude above MSL [m] of every source over time, with the flight phases shaded."""
-    fig = time_series_figure(altitudes, "altitude above MSL [m]", title="Altitude and flight phases")
-    return add_phase_bands(fig, phases) if phases is not None and len(phases) else fig
+    fig = time_series_figure(altitudes, "altitude above MSL [m]", title="Altitude and flight phases",
+                             time_base=time_base, window=window)
+    return add_phase_bands(fig, phases, time_base=time_base) if phases is not None and len(phases) else fig
 
 
-def track_figure(tracks: Mapping[str, pd.DataFrame], max_points: int = MAX_POINTS) -> go.Figure:
-    """Horizontal flight track(s) in local NED: east [m] right, north [m] up, equal scales."""
+def track_figure(tracks: Mapping[str, pd.DataFrame], max_points: int = MAX_POINTS, *,
+                 time_base: TimeBase | None = None, window: Sequence[float] | None = None) -> go.Figure:
+    """Horizontal flight track(s) in local NED: east [m] right, north [m] up, equal scales; only the part flown
+    in ``window`` [s since start] when given."""
+    base = time_base or TimeBase()
     fig = go.Figure()
-    for name, track in tracks.items():
-        step = max(1, int(np.ceil(len(track) / max_points)))
-        part = track.iloc[::step]
+    for name, full in tracks.items():
+        since = base.since_start(full["time_s"])
+        track = full.iloc[window_slice(since, window)]
+        since = base.since_start(track["time_s"])
+        keep = np.unique(np.linspace(0, len(track) - 1, min(len(track), max_points)).round().astype(int))
+        part = track.iloc[keep]
         fig.add_trace(go.Scatter(x=part["east_m"], y=part["north_m"], name=name, mode="lines",
                                  line={"color": SOURCE_COLORS.get(name), "width": 1.5},
-                                 customdata=part["time_s"], hovertemplate="t %{customdata:.1f} s<br>"
-                                 "north %{y:.1f} m<br>east %{x:.1f} m"))
+                                 customdata=base.hover_labels(since[keep]), hovertemplate="%{customdata}<br>"
+                                 "north %{y:.1f} m<br>east %{x:.1f} m<extra>" + name + "</extra>"))
         if len(track):
             fig.add_trace(go.Scatter(x=[track["east_m"].iloc[0]], y=[track["north_m"].iloc[0]], mode="markers",
                                      name=f"{name} start", showlegend=False,
@@ -150,7 +315,7 @@ def segment_figure(imu_norms: pd.DataFrame, segments: pd.DataFrame, max_points: 
     base_layout(fig, y_title="|gyro| [rad/s]", height=420, title="Calibration segment (drag a box to pick one)")
     fig.update_yaxes(title_text="|f| [m/s^2]", row=2, col=1)
     fig.update_xaxes(title_text="", row=1, col=1)
-    fig.update_xaxes(title_text=TIME_TITLE, row=2, col=1)
+    fig.update_xaxes(title_text=LOG_CLOCK_TITLE, row=2, col=1)
     fig.update_layout(dragmode="select", selectdirection="h", hovermode="closest")
     return fig
 
@@ -185,13 +350,14 @@ def raw_filtered_figure(time_s: np.ndarray, raw: np.ndarray, filtered: np.ndarra
     for k, axis in enumerate(axes):
         fig.update_yaxes(title_text=f"{axis} [{unit}]", row=k + 1, col=1)
     fig.update_xaxes(title_text="")
-    fig.update_xaxes(title_text=TIME_TITLE, row=len(axes), col=1)
+    fig.update_xaxes(title_text=LOG_CLOCK_TITLE, row=len(axes), col=1)
     return fig
 
 
-def allan_figure(curves: list[pd.DataFrame], readoffs: list, axes: tuple[str, ...], unit: str) -> go.Figure:
+def allan_figure(curves: list[pd.DataFrame], readoffs: list, axes: tuple[str, ...], unit: str,
+                 sensor: str | None = None) -> go.Figure:
     """Overlapping Allan deviation per axis (log-log) with the read-off figures drawn: the white-noise line
-    N / sqrt(tau) and the bias-instability floor 0.664 B at its cluster time.
+    N / sqrt(tau) and the bias-instability floor 0.664 B at its cluster time; the title names ``sensor``.
 
     Parameters
     ----------
@@ -215,7 +381,8 @@ def allan_figure(curves: list[pd.DataFrame], readoffs: list, axes: tuple[str, ..
                                  mode="markers", name=f"{axis} bias instability", showlegend=False,
                                  marker={"color": color, "symbol": "star", "size": 12}))
     base_layout(fig, x_title="cluster time tau [s]", y_title=f"Allan deviation [{unit}]", height=380,
-                title="Allan deviation (dotted: white noise N/sqrt(tau); star: bias-instability floor)")
+                title=f"Allan deviation{f' of the {sensor}' if sensor else ''} (dotted: white noise N/sqrt(tau); "
+                      "star: bias-instability floor)")
     fig.update_xaxes(type="log")
     fig.update_yaxes(type="log")
     fig.update_layout(hovermode="closest")
@@ -246,16 +413,28 @@ def tau_curve_figure(log10_tau_grid, neg_log_likelihood, mean_nis, chosen_tau: f
 REFERENCE_DASH = {"truth": "dash", "onboard": "dot"}
 
 
+def _time_titles(fig: go.Figure, n_rows: int, time_base: TimeBase | None) -> None:
+    """Time axis title on the bottom row only."""
+    fig.update_xaxes(title_text="")
+    fig.update_xaxes(title_text=TIME_TITLE if time_base is not None else LOG_CLOCK_TITLE, row=n_rows, col=1)
+
+
 def quantity_figure(frames: Mapping[str, pd.DataFrame], rows: Sequence[tuple[str, str]], *, title: str,
-                    max_points: int = MAX_POINTS) -> go.Figure:
+                    max_points: int = MAX_POINTS, time_base: TimeBase | None = None,
+                    window: Sequence[float] | None = None,
+                    angle_columns: Collection[str] = ANGLE_COLUMNS) -> go.Figure:
     """One row per quantity, one downsampled line per source (estimators, onboard, truth).
 
     Parameters
     ----------
     frames : mapping of source -> pandas.DataFrame
-        Each with ``time_s`` [s] and the row columns (missing or all-NaN columns are skipped).
+        Each with ``time_s`` [s, log clock] and the row columns (missing or all-NaN columns are skipped).
     rows : sequence of (column, axis title with unit)
         Quantities to draw, top to bottom.
+    time_base, window
+        Time axis (seconds since start) and the page's shared range [s since start].
+    angle_columns : collection of str
+        Columns of angles in [-180, 180) deg, broken at their wrap-arounds.
     """
     fig = make_subplots(rows=len(rows), cols=1, shared_xaxes=True, vertical_spacing=0.03)
     for source, frame in frames.items():
@@ -264,19 +443,20 @@ def quantity_figure(frames: Mapping[str, pd.DataFrame], rows: Sequence[tuple[str
             if column not in frame or not frame[column].notna().any():
                 continue
             trace = line(time_s, frame[column].to_numpy(float), source, max_points=max_points,
+                         time_base=time_base, window=window, wrap=column in angle_columns,
                          legendgroup=source, showlegend=not any(t.name == source for t in fig.data))
             trace.line.dash = REFERENCE_DASH.get(source)
             fig.add_trace(trace, row=row, col=1)
     base_layout(fig, y_title="", height=90 + 170 * len(rows), title=title)
     for row, (_, axis_title) in enumerate(rows, start=1):
         fig.update_yaxes(title_text=axis_title, row=row, col=1)
-    fig.update_xaxes(title_text="")
-    fig.update_xaxes(title_text=TIME_TITLE, row=len(rows), col=1)
-    return fig
+    _time_titles(fig, len(rows), time_base)
+    return apply_time_range(fig, window)
 
 
 def innovation_figure(diagnostics: pd.DataFrame, units: Mapping[str, str], *, title: str,
-                      max_points: int = MAX_POINTS) -> go.Figure:
+                      max_points: int = MAX_POINTS, time_base: TimeBase | None = None,
+                      window: Sequence[float] | None = None) -> go.Figure:
     """Innovations of one estimator's sensor, one row per component, with the +-2 sqrt(S) envelope (95 % for a
     consistent filter) and the rejected updates marked.
 
@@ -287,50 +467,61 @@ def innovation_figure(diagnostics: pd.DataFrame, units: Mapping[str, str], *, ti
         ``accepted``.
     units : mapping of component -> str
         Unit of each component's innovation.
+    time_base, window
+        Time axis (seconds since start) and the page's shared range [s since start].
     """
+    base = time_base or TimeBase()
     parts = [(str(component), part) for component, part
              in diagnostics.groupby("component", sort=False, observed=True)]
     components = [component for component, _ in parts]
     fig = make_subplots(rows=max(1, len(components)), cols=1, shared_xaxes=True, vertical_spacing=0.04)
+    options = {"max_points": max_points, "time_base": time_base, "window": window}
     for row, (_, part) in enumerate(parts, start=1):
         time_s = part["time_s"].to_numpy(float)
         bound = 2.0 * np.sqrt(part["innovation_var"].to_numpy(float))
         first = row == 1
-        fig.add_trace(line(time_s, bound, "+2 sqrt(S)", max_points=max_points, color="#bbbbbb",
-                           legendgroup="bound", showlegend=first), row=row, col=1)
-        fig.add_trace(line(time_s, -bound, "-2 sqrt(S)", max_points=max_points, color="#bbbbbb",
-                           legendgroup="bound", showlegend=False), row=row, col=1)
-        fig.add_trace(line(time_s, part["innovation"].to_numpy(float), "innovation", max_points=max_points,
-                           color="#1f77b4", legendgroup="innovation", showlegend=first), row=row, col=1)
-        rejected = part.loc[~part["accepted"].to_numpy(dtype=bool)]
+        fig.add_trace(line(time_s, bound, "+2 sqrt(S)", color="#bbbbbb", legendgroup="bound", showlegend=first,
+                           **options), row=row, col=1)
+        fig.add_trace(line(time_s, -bound, "-2 sqrt(S)", color="#bbbbbb", legendgroup="bound", showlegend=False,
+                           **options), row=row, col=1)
+        fig.add_trace(line(time_s, part["innovation"].to_numpy(float), "innovation", color="#1f77b4",
+                           legendgroup="innovation", showlegend=first, **options), row=row, col=1)
+        shown = part.iloc[window_slice(base.since_start(time_s), window)]
+        rejected = shown.loc[~shown["accepted"].to_numpy(dtype=bool)]
         if len(rejected):
             step = max(1, int(np.ceil(len(rejected) / max_points)))
-            fig.add_trace(go.Scatter(x=rejected["time_s"].iloc[::step], y=rejected["innovation"].iloc[::step],
+            since = base.since_start(rejected["time_s"].iloc[::step])
+            fig.add_trace(go.Scatter(x=since, y=rejected["innovation"].iloc[::step],
                                      mode="markers", name="rejected", legendgroup="rejected",
                                      showlegend=not any(t.name == "rejected" for t in fig.data),
+                                     customdata=base.hover_labels(since),
+                                     hovertemplate="rejected: %{y:.4g}<br>%{customdata}<extra></extra>",
                                      marker={"color": "#d62728", "symbol": "x", "size": 5}), row=row, col=1)
     base_layout(fig, y_title="", height=90 + 160 * max(1, len(components)), title=title)
     for row, component in enumerate(components, start=1):
         fig.update_yaxes(title_text=f"{component} [{units.get(component, '-')}]", row=row, col=1)
-    fig.update_xaxes(title_text="")
-    fig.update_xaxes(title_text=TIME_TITLE, row=max(1, len(components)), col=1)
-    return fig
+    _time_titles(fig, max(1, len(components)), time_base)
+    return apply_time_range(fig, window)
 
 
 def nis_figure(moving: pd.DataFrame, window: int, band: tuple[float, float], *, title: str,
-               max_points: int = MAX_POINTS) -> go.Figure:
+               max_points: int = MAX_POINTS, time_base: TimeBase | None = None,
+               time_window: Sequence[float] | None = None) -> go.Figure:
     """Moving mean NIS per component with its chi-square band (``moving``: ``time_s``, ``component``,
-    ``mean_nis``; ``band``: 95 % bounds of the mean of ``window`` NIS values)."""
+    ``mean_nis``; ``band``: 95 % bounds of the mean of ``window`` NIS values; ``time_window``: the page's shared
+    range [s since start])."""
     fig = go.Figure()
     for k, (component, part) in enumerate(moving.groupby("component", sort=False)):
         fig.add_trace(line(part["time_s"].to_numpy(float), part["mean_nis"].to_numpy(float), str(component),
-                           max_points=max_points, color=AXIS_COLORS[k % len(AXIS_COLORS)]))
+                           max_points=max_points, color=AXIS_COLORS[k % len(AXIS_COLORS)], time_base=time_base,
+                           window=time_window))
     fig.add_hrect(y0=band[0], y1=band[1], fillcolor="rgba(44,160,44,0.15)", line_width=0, layer="below")
     fig.add_hline(y=1.0, line_dash="dash", line_color="#2ca02c",
                   annotation_text=f"95 % chi-square band for {window} updates", annotation_position="top left")
-    base_layout(fig, y_title=f"mean NIS over {window} updates [-]", height=320, title=title)
+    base_layout(fig, x_title=TIME_TITLE if time_base is not None else LOG_CLOCK_TITLE,
+                y_title=f"mean NIS over {window} updates [-]", height=320, title=title)
     fig.update_yaxes(type="log")
-    return fig
+    return apply_time_range(fig, time_window)
 
 
 # ---------------------------------------------------------------------------------------------------- sun vector
@@ -339,24 +530,35 @@ CELL_STATE_COLORS = ("#e8e8e8", "#f2b705", "#d62728")
 
 
 def cell_state_figure(time_s: np.ndarray, states: np.ndarray, names: Sequence[str],
-                      max_columns: int = MAX_POINTS) -> go.Figure:
-    """Heat map of every cell's state over time (``states``: shape (n, cells), codes 0..2 named by ``names``).
+                      max_columns: int = MAX_POINTS, *, time_base: TimeBase | None = None,
+                      window: Sequence[float] | None = None) -> go.Figure:
+    """Heat map of every cell's state over time (``time_s``: log clock [s]; ``states``: shape (n, cells), codes
+    0..2 named by ``names``) over ``window`` [s since start].
 
-    Long logs are reduced to ``max_columns`` time bins keeping each bin's highest code, so a short fault stays
-    visible."""
-    time_s, states = np.asarray(time_s, float), np.asarray(states)
-    step = max(1, int(np.ceil(len(time_s) / max_columns)))
-    n_bins = int(np.ceil(len(time_s) / step))
+    The epochs in the window are reduced to ``max_columns`` time bins keeping each bin's highest code, so a short
+    fault stays visible."""
+    base = time_base or TimeBase()
+    since, states = base.since_start(time_s), np.asarray(states)
+    part = window_slice(since, window)
+    since, states = since[part], states[part]
+    step = max(1, int(np.ceil(len(since) / max_columns)))
+    n_bins = int(np.ceil(len(since) / step))
     padded = np.full((n_bins * step, states.shape[1]), -1)
     padded[: len(states)] = states
     binned = padded.reshape(n_bins, step, states.shape[1]).max(axis=1)
     n_codes = len(CELL_STATE_COLORS)
     scale = [[edge / n_codes, color] for k, color in enumerate(CELL_STATE_COLORS) for edge in (k, k + 1)]
+    x = since[::step]
+    state_names = np.asarray(names, dtype=object)[np.clip(binned.T, 0, n_codes - 1)]
+    times = np.asarray(base.hover_labels(x), dtype=object)
     fig = go.Figure(go.Heatmap(
-        x=time_s[::step], y=[f"cell {k + 1}" for k in range(states.shape[1])], z=binned.T, zmin=-0.5,
-        zmax=n_codes - 0.5, colorscale=scale, hovertemplate="%{y} at %{x:.1f} s: %{customdata}<extra></extra>",
-        customdata=np.asarray(names, dtype=object)[np.clip(binned.T, 0, n_codes - 1)],
+        x=x, y=[f"cell {k + 1}" for k in range(states.shape[1])], z=binned.T, zmin=-0.5,
+        zmax=n_codes - 0.5, colorscale=scale, hovertemplate="%{y}: %{customdata}<extra></extra>",
+        customdata=state_names + "<br>" + times[None, :],
         colorbar={"tickvals": list(range(n_codes)), "ticktext": list(names), "title": {"text": "state"}}))
-    base_layout(fig, y_title="photocell", height=300, title="Cells over time")
+    base_layout(fig, x_title=TIME_TITLE if time_base is not None else LOG_CLOCK_TITLE, y_title="photocell",
+                height=300, title="Cells over time")
     fig.update_layout(hovermode="closest")
+    if window is not None:
+        fig.update_xaxes(range=[float(window[0]), float(window[1])], autorange=False)
     return fig

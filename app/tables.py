@@ -5,12 +5,20 @@ Column names carry their units, as everywhere in solarnav.
 
 from __future__ import annotations
 
+import dataclasses
 import json
+import math
 from collections.abc import Sequence
+from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
 
+from app.comparison import nis_band
+from calib.figures import ChannelConsistency
+from calib.fir import default_cutoff_hz
+from calib.tau import COLOURED_LAG1, TauSelection
+from estimators.consistency import MIN_UPDATES, NIS_WARNING_RANGE
 from ingest import FlightLog, LogMetadata
 
 #: MAVLink MAV_TYPE values a PX4 log is likely to carry.
@@ -46,11 +54,13 @@ def vehicle_name(mav_type: int | None) -> str:
     return f"{MAV_TYPE_NAMES.get(mav_type, 'other')} (MAV_TYPE {mav_type})"
 
 
-def format_duration(duration_s: float) -> str:
-    """``h:mm:ss`` / ``m:ss.s`` text of a duration [s]."""
+def duration_text(duration_s: float) -> str:
+    """Duration with its units: ``"14 min 24.0 s"``, ``"1 h 02 min 05.0 s"``, ``"42.5 s"``."""
     minutes, seconds = divmod(float(duration_s), 60.0)
     hours, minutes = divmod(int(minutes), 60)
-    return f"{hours}:{minutes:02d}:{seconds:04.1f}" if hours else f"{minutes}:{seconds:04.1f}"
+    if hours:
+        return f"{hours} h {minutes:02d} min {seconds:04.1f} s"
+    return f"{minutes} min {seconds:04.1f} s" if minutes else f"{seconds:.1f} s"
 
 
 def streams_table(meta: LogMetadata) -> pd.DataFrame:
@@ -141,10 +151,11 @@ def runs_table(runs: pd.DataFrame, entries: Sequence) -> pd.DataFrame:
 
 
 def flat_columns(table: pd.DataFrame) -> pd.DataFrame:
-    """``table`` with MultiIndex columns joined into single labels (``"Gyroscope (deg/s) p"``) for display."""
+    """``table`` with MultiIndex columns joined into single labels (``"Gyroscope (deg/s) p"``, powers as
+    superscripts: ``"Accelerometer (m/s²) x"``) for display."""
     if not isinstance(table.columns, pd.MultiIndex):
         return table
-    return table.set_axis([" ".join(str(part) for part in column) for column in table.columns], axis=1)
+    return table.set_axis([pretty_unit(" ".join(str(part) for part in column)) for column in table.columns], axis=1)
 
 
 def allan_table(per_axis: Sequence, axes: Sequence[str], unit: str) -> pd.DataFrame:
@@ -182,14 +193,204 @@ def tuning_table(cal) -> pd.DataFrame:
 
 
 def tuning_nis_table(cal) -> pd.DataFrame:
-    """One row per estimator and channel: mean NIS before and after the identification, and the 95 % band."""
+    """One row per estimator and channel: mean NIS before and after the identification, the 95 % band, and the
+    :func:`nis_verdict` of the tuned NIS (``verdict``, ``why``)."""
     rows = []
     for name, result in cal.tuning.items():
         after = {c.channel: c for c in result.nis_after}
         for before in result.nis_before:
             if before.channel in after:
                 now = after[before.channel]
+                verdict = channel_verdict(now, f"{name} {now.channel}")
                 rows.append({"estimator": name, "channel": before.channel, "mean NIS calibrated": before.mean_nis,
                              "mean NIS tuned": now.mean_nis, "95 % band": f"{now.band[0]:.3f} .. {now.band[1]:.3f}",
-                             "updates": now.n_updates})
-    return pd.DataFrame(rows)
+                             "updates": now.n_updates, "verdict": verdict.level, "why": verdict.sentence})
+    return pd.DataFrame(rows, columns=["estimator", "channel", "mean NIS calibrated", "mean NIS tuned", "95 % band",
+                                       "updates", "verdict", "why"])
+
+
+# ---------------------------------------------------------------------------------------------------- NIS verdicts
+#: Verdict levels and their display colours (the dashboard's green / orange / red / grey).
+VERDICT_COLORS = {"pass": "#2ca02c", "warn": "#ff7f0e", "fail": "#d62728", "not judged": "#7f7f7f"}
+
+
+@dataclass(frozen=True)
+class NisVerdict:
+    """Pass / warn / fail of one channel's mean NIS, with its display colour and a sentence saying why."""
+
+    level: str
+    color: str
+    sentence: str
+
+
+def nis_verdict(label: str, mean_nis: float, band: tuple[float, float], n_updates: int) -> NisVerdict:
+    """Verdict on a channel's mean NIS against its chi-square band.
+
+    Thresholds (docs/calibration.md, 'Consistency checks'):
+
+    * **pass**: inside the 95 % band of the mean of ``n_updates`` chi-square(1) values (``band``, inclusive);
+    * **warn**: outside the band but inside :data:`estimators.consistency.NIS_WARNING_RANGE` (0.2 .. 3): the band
+      ignores the time correlation of real innovations, so a long log is rarely inside it; imperfect, not wrong;
+    * **fail**: outside :data:`~estimators.consistency.NIS_WARNING_RANGE`, the range outside which a replay warns
+      of an inconsistent channel: R (or the model) is wrong;
+    * **not judged**: fewer than :data:`estimators.consistency.MIN_UPDATES` updates or no finite NIS.
+
+    Below 1 the innovations are smaller than the filter expects (R too pessimistic); above 1 they are larger
+    (R too optimistic, or the model is wrong).
+    """
+    if n_updates < MIN_UPDATES or not math.isfinite(mean_nis):
+        why = f"only {n_updates} updates" if n_updates < MIN_UPDATES else "no finite NIS"
+        return NisVerdict("not judged", VERDICT_COLORS["not judged"],
+                          f"{label}: {why}, too few to judge (needs >= {MIN_UPDATES} updates)")
+    low, high = band
+    text = f"{label}: mean NIS {mean_nis:.3g}"
+    band_text = f"its 95 % band {low:.3g}-{high:.3g}"
+    if low <= mean_nis <= high:
+        return NisVerdict("pass", VERDICT_COLORS["pass"],
+                          f"{text}, inside {band_text}: consistent (R matches the innovations)")
+    warn_low, warn_high = NIS_WARNING_RANGE
+    level = "warn" if warn_low <= mean_nis <= warn_high else "fail"
+    slightly = "slightly " if level == "warn" else ""
+    if mean_nis < low:
+        where, meaning = "below", f"R is {slightly}too pessimistic (the filter trusts this sensor less than it could)"
+    else:
+        where, meaning = "above", (f"R is {slightly}too optimistic or the model is "
+                                   f"{'slightly off' if slightly else 'wrong'} (the filter trusts this sensor more "
+                                   "than it should)")
+    if level == "warn":
+        where = f"{where} {band_text} but within {warn_low:g}..{warn_high:g}"
+    else:
+        where = f"far {where} {band_text} (outside {warn_low:g}..{warn_high:g})"
+    return NisVerdict(level, VERDICT_COLORS[level], f"{text}, {where}: {meaning}")
+
+
+def channel_verdict(channel: ChannelConsistency, label: str | None = None) -> NisVerdict:
+    """:func:`nis_verdict` of one channel of :func:`estimators.consistency.channel_consistency`."""
+    return nis_verdict(label or channel.channel, channel.mean_nis, channel.band, channel.n_updates)
+
+
+def with_nis_verdicts(summary: pd.DataFrame) -> pd.DataFrame:
+    """:func:`app.comparison.nis_summary` with the 95 % band of the mean NIS of each row's updates and a
+    ``verdict`` (pass / warn / fail / not judged, :func:`nis_verdict`) and ``why`` column."""
+    bands = [nis_band(int(n)) if n > 0 else (math.nan, math.nan) for n in summary["updates"]]
+    verdicts = [nis_verdict(f"{estimator} {sensor}", float(mean), band, int(n)) for estimator, sensor, n, mean, band
+                in zip(summary["estimator"], summary["sensor"], summary["updates"], summary["mean NIS [-]"], bands,
+                       strict=True)]
+    out = summary.copy()
+    out["95 % band [-]"] = [f"{low:.3g} .. {high:.3g}" for low, high in bands]
+    out["verdict"] = [v.level for v in verdicts]
+    out["why"] = [v.sentence for v in verdicts]
+    return out
+
+
+def verdict_style(table: pd.DataFrame, column: str = "verdict"):
+    """``table`` as a pandas Styler with the ``column`` cells coloured by :data:`VERDICT_COLORS`."""
+    def colour(value):
+        color = VERDICT_COLORS.get(value)
+        return f"background-color: {color}; color: white; font-weight: bold" if color else ""
+
+    return table.style.map(colour, subset=[column]).format(precision=3)
+
+
+# ---------------------------------------------------------------------------------------------------- auto tau
+def tau_warnings(selection: TauSelection) -> list[str]:
+    """Warnings on an automatic tau: its mean NIS is outside its own 95 % band (the :func:`nis_verdict`
+    sentence, plus a hint when the innovations are coloured), or the search ended at a bound of its grid
+    (within a tenth of a grid step). Empty for a default or user tau."""
+    grid = selection.log10_tau_grid
+    if not grid:
+        return []
+    notes = []
+    verdict = nis_verdict(f"accelerometer y at tau = {selection.tau:.3g}", selection.nis_at_tau,
+                          selection.nis_band, selection.n_innovations)
+    if verdict.level != "pass":
+        coloured = (f"; the innovations are coloured (lag-1 autocorrelation {selection.lag1_autocorrelation:.2f}"
+                    f" > {COLOURED_LAG1}), so the band is too narrow" if selection.lag1_autocorrelation > COLOURED_LAG1
+                    else "")
+        notes.append(f"The chosen tau is outside its own 95 % NIS band: {verdict.sentence}{coloured}.")
+    tolerance = (grid[-1] - grid[0]) / max(len(grid) - 1, 1) / 10.0
+    chosen = math.log10(selection.tau)
+    for bound, side in ((grid[0], "lower"), (grid[-1], "upper")):
+        if abs(chosen - bound) <= tolerance:
+            notes.append(f"The search ended at the {side} bound of its grid (tau = {10.0**bound:g}; grid "
+                         f"{10.0**grid[0]:g} .. {10.0**grid[-1]:g}): the best tau may lie beyond it. Set tau by "
+                         "hand or check the accelerometer calibration.")
+    return notes
+
+
+# ---------------------------------------------------------------------------------------------------- units
+#: Sensors whose figures are displayed in another unit than they are computed in: unit -> (display unit, factor).
+#: The gyroscope is shown in deg/s everywhere on the calibration page (as in the paper's Table 4); CALIB.json and
+#: the PX4 .params file stay in SI (rad/s).
+DISPLAY_UNITS = {"rad/s": ("deg/s", math.degrees(1.0))}
+
+
+def display_unit(unit: str) -> tuple[str, float]:
+    """Display unit of a figure in ``unit`` and the factor converting to it (``("deg/s", 57.3)`` for rad/s)."""
+    return DISPLAY_UNITS.get(unit, (unit, 1.0))
+
+
+def pretty_unit(unit: str) -> str:
+    """``unit`` with its powers as superscripts: ``"m/s^2"`` -> ``"m/s²"``."""
+    return unit.replace("^2", "²").replace("^3", "³")
+
+
+def variance_unit(unit: str) -> str:
+    """Unit of a variance of a quantity in ``unit``: ``"(m/s²)²"``, ``"(rad/s)²"``, ``"m²"``, ``"-"``."""
+    if unit in ("", "-"):
+        return "-"
+    pretty = pretty_unit(unit)
+    compound = any(mark in pretty for mark in "/*· ²³")
+    return f"({pretty})²" if compound else f"{pretty}²"
+
+
+def display_noise_table(table: pd.DataFrame) -> pd.DataFrame:
+    """:func:`calib.tables.noise_table` (index reset) in display units (gyroscope in deg/s, :data:`DISPLAY_UNITS`)
+    with powers as superscripts in the ``unit`` column."""
+    out = table.copy()
+    for unit, (shown, factor) in DISPLAY_UNITS.items():
+        rows = out["unit"] == unit
+        for column in ("eta", "beta", "sigma", "sigma_robust", "mean", "physical_bias"):
+            if column in out:
+                out.loc[rows, column] = out.loc[rows, column] * factor
+        out.loc[rows, "unit"] = shown
+    out["unit"] = out["unit"].map(pretty_unit)
+    return out
+
+
+def display_r_matrix(matrix: pd.DataFrame, unit: str) -> tuple[pd.DataFrame, str]:
+    """An eq 51 matrix [unit^2] in display units and its heading unit (``"(deg/s)²"`` for the gyroscope)."""
+    shown, factor = display_unit(unit)
+    return matrix * factor**2, variance_unit(shown)
+
+
+def display_allan(curves: Sequence[pd.DataFrame], readoffs: Sequence, unit: str) -> tuple[list, list, str]:
+    """Allan curves (``tau_s``, ``adev``, ``adev_err``) and read-offs (calib.allan.AllanFigures) in display units."""
+    shown, factor = display_unit(unit)
+    if factor == 1.0:
+        return list(curves), list(readoffs), shown
+    scaled = [curve.assign(adev=curve["adev"] * factor, adev_err=curve["adev_err"] * factor) for curve in curves]
+    figs = [dataclasses.replace(f, white_density=f.white_density * factor, bias_instability=f.bias_instability * factor,
+                                rate_random_walk=f.rate_random_walk * factor) for f in readoffs]
+    return scaled, figs, shown
+
+
+# ---------------------------------------------------------------------------------------------------- FIR editor
+def fir_editor_table(sensors: Sequence[str], rates_hz: Sequence[float], fixed_wing: bool) -> pd.DataFrame:
+    """Initial rows of the FIR editor: sensor, the default cutoff it would get at its stream's rate
+    (``"default (5 Hz)"``), and empty (NaN: default) ``cutoff_hz`` / ``numtaps`` cells."""
+    return pd.DataFrame({
+        "sensor": list(sensors),
+        "default": [f"default ({default_cutoff_hz(rate, fixed_wing):.3g} Hz)" if rate > 0 else "default"
+                    for rate in rates_hz],
+        "cutoff_hz": np.full(len(sensors), np.nan), "numtaps": np.full(len(sensors), np.nan)})
+
+
+def fir_rows(editor: pd.DataFrame) -> tuple[tuple[str, float, int], ...]:
+    """Hashable FIR requests of the editor: (sensor, cutoff [Hz] or NaN for the default, taps or 0 for the
+    default)."""
+    def taps(value) -> int:
+        return 0 if value is None or not np.isfinite(float(value)) else int(value)
+
+    return tuple((str(row.sensor), float(row.cutoff_hz) if row.cutoff_hz is not None else math.nan,
+                  taps(row.numtaps)) for row in editor.itertuples())

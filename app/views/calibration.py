@@ -53,7 +53,7 @@ shaded = candidates if window is None else pd.DataFrame([("user", *window, "wind
 st.plotly_chart(figures.segment_figure(adapters.imu_norms(root, sha256), shaded), key="calib_segment_chart",
                 on_select=take_box_selection, selection_mode="box")
 if automatic:
-    st.dataframe(candidates, hide_index=True, column_config={
+    st.dataframe(candidates, hide_index=True, width="stretch", column_config={
         "start_s": st.column_config.NumberColumn("start [s]", format="%.1f"),
         "end_s": st.column_config.NumberColumn("end [s]", format="%.1f")})
 
@@ -61,23 +61,34 @@ if automatic:
 st.subheader("Filters and noise")
 available = [name for name, channels in SENSORS.items() if log.has(channels.stream)]
 requests = st.data_editor(
-    pd.DataFrame({"sensor": available, "cutoff_hz": np.nan, "numtaps": 0}), hide_index=True, key="calib_fir",
-    disabled=["sensor"], column_config={
+    tables.fir_editor_table(available, [log.meta.streams[SENSORS[name].stream].rate_hz for name in available],
+                            log.meta.is_fixed_wing),
+    hide_index=True, key="calib_fir", disabled=["sensor", "default"], placeholder="default", width="stretch",
+    column_config={
+        "default": st.column_config.TextColumn("default cutoff"),
         "cutoff_hz": st.column_config.NumberColumn("cutoff [Hz] (empty: default)", min_value=0.01),
-        "numtaps": st.column_config.NumberColumn("taps (0: default, odd)", min_value=0, step=2)})
-fir_rows = tuple((row.sensor, float(row.cutoff_hz), int(row.numtaps or 0)) for row in requests.itertuples())
+        "numtaps": st.column_config.NumberColumn("taps (empty: default, odd)", min_value=1, step=2)})
+fir_rows = tables.fir_rows(requests)
 left, right = st.columns(2)
 noise = left.radio("R from", ["sigma", "eta"], horizontal=True, key="calib_noise",
                    format_func={"sigma": "sigma (residual std, default)", "eta": "eta (eq 50, as the paper)"}.get)
 tau_mode = right.radio("tau (eq 52: multiplies the accelerometer's body-y variance)", ["manual", *TAU_METHODS],
                        horizontal=True, key="calib_tau_mode", format_func=TAU_MODE_LABELS.get)
-tau = right.select_slider("tau", TAU_CHOICES, value=1.0, key="calib_tau", disabled=tau_mode != "manual")
+# the hand-set tau survives a detour through the automatic modes (their control is a different widget)
+st.session_state["calib_tau"] = st.session_state.get("calib_tau", 1.0)
 with session.input_errors():
     base = adapters.calibration(root, sha256, window, fir_rows, noise)
     selection = None if tau_mode == "manual" else adapters.auto_tau(root, sha256, window, fir_rows, noise, tau_mode)
+if selection is None:
+    tau = right.select_slider("tau", TAU_CHOICES, key="calib_tau")
+else:  # greyed, showing the tau actually in use
+    tau = right.number_input("tau (in use, chosen automatically)", value=float(selection.tau), format="%.3g",
+                             disabled=True)
 current = adapters.with_tau_value(base, selection or tau) if selection or tau != base.tau.tau else base
 for warning in base.warnings:
     st.warning(warning)
+for warning in tables.tau_warnings(selection) if selection is not None else ():
+    st.warning(f"Automatic tau: {warning}")
 
 SECTIONS = ("Noise and bias (Table 4)", "Filter and overlays", "R matrices and tau", "Allan deviation")
 
@@ -87,10 +98,17 @@ def results() -> None:
     """One result section at a time (only the one shown is computed; reruns alone on a change)."""
     section = st.segmented_control("Show", SECTIONS, default=SECTIONS[0], key="calib_section")
     if section == SECTIONS[0]:
-        st.dataframe(tables.flat_columns(table4(base)), key="calib_table4")
+        st.dataframe(tables.flat_columns(table4(base)), key="calib_table4", width="stretch")
         st.caption("Paper Table 4 layout: eq 50 noise eta and bias beta, the residual sigma (per sample at the "
-                   "stream's rate), its robust variant, and the physically referenced bias on a stationary segment.")
-        st.dataframe(noise_table(base).reset_index(), hide_index=True, key="calib_all_sensors")
+                   "stream's rate), its robust variant, and the physically referenced bias on a stationary segment. "
+                   "Gyroscope figures are shown in deg/s on this page, as in the paper (CALIB.json and the .params "
+                   "file are in SI: rad/s).")
+        st.dataframe(tables.display_noise_table(noise_table(base).reset_index()), hide_index=True,
+                     key="calib_all_sensors", width="stretch", column_config={
+                         "rate_hz": st.column_config.NumberColumn("rate [Hz]", format="%.1f"),
+                         "cutoff_hz": st.column_config.NumberColumn("cutoff [Hz]", format="%.3g"),
+                         "segment_start_s": st.column_config.NumberColumn("segment start [s]", format="%.1f"),
+                         "segment_end_s": st.column_config.NumberColumn("segment end [s]", format="%.1f")})
     elif section == SECTIONS[1]:
         sensor = st.selectbox("Sensor", list(base.sensors), key="calib_sensor")
         cal = base.sensors[sensor]
@@ -114,18 +132,24 @@ def results() -> None:
                        f"{selection.note}")
         columns = st.columns(3)
         for k, (name, matrix) in enumerate(r_tables(current).items()):
-            unit = current.sensors[name].unit if name in current.sensors else ""
-            columns[k % 3].write(f"**{name}** [{unit}^2]")
-            columns[k % 3].dataframe(matrix.style.format("{:.3e}"), key=f"calib_r_{name}")
+            unit = current.sensors[name].unit if name in current.sensors else SENSORS[name].unit if name in SENSORS \
+                else "-"
+            shown, heading = tables.display_r_matrix(matrix, unit)
+            columns[k % 3].write(f"**{name}** [{heading}]")
+            columns[k % 3].dataframe(shown.style.format("{:.3e}"), key=f"calib_r_{name}", width="stretch")
+        st.caption("Variances of eq 51; the gyroscope's in (deg/s)² as everywhere on this page (the exports are in "
+                   "SI).")
     elif section == SECTIONS[3]:
         if not base.allan:
             st.info("No stationary segment: the Allan deviation needs the vehicle at rest (pick a stationary "
                     "window).")
         for name, curves in adapters.allan(root, sha256, window, fir_rows, noise).items():
-            axes, unit = base.sensors[name].axes, base.sensors[name].unit
-            st.plotly_chart(figures.allan_figure(curves, list(base.allan[name]), axes, unit), key=f"allan_{name}")
-            st.dataframe(tables.allan_table(base.allan[name], axes, unit), hide_index=True,
-                         key=f"allan_table_{name}")
+            axes = base.sensors[name].axes
+            curves, readoffs, unit = tables.display_allan(curves, list(base.allan[name]), base.sensors[name].unit)
+            st.plotly_chart(figures.allan_figure(curves, readoffs, axes, tables.pretty_unit(unit), sensor=name),
+                            key=f"allan_{name}")
+            st.dataframe(tables.allan_table(readoffs, axes, tables.pretty_unit(unit)), hide_index=True,
+                         key=f"allan_table_{name}", width="stretch")
 
 
 st.subheader("Results")
@@ -139,8 +163,13 @@ st.caption("Per estimator, the noise figures that maximise the likelihood of its
 if st.toggle("Identify noise (about a minute for 15 minutes of flight)", key="calib_tune"):
     digest = hashlib.sha256(json.dumps(calibration_to_dict(current), sort_keys=True).encode()).hexdigest()
     current = adapters.tuned_calibration(root, sha256, current, digest)
-    st.dataframe(tables.tuning_table(current), hide_index=True, key="calib_tuning_table")
-    st.dataframe(tables.tuning_nis_table(current), hide_index=True, key="calib_tuning_nis")
+    st.dataframe(tables.tuning_table(current), hide_index=True, key="calib_tuning_table", width="stretch")
+    st.dataframe(tables.verdict_style(tables.tuning_nis_table(current)), hide_index=True, key="calib_tuning_nis",
+                 width="stretch", column_config={"why": st.column_config.TextColumn("why", width="large")})
+    low, high = tables.NIS_WARNING_RANGE
+    st.caption("Verdict of the tuned mean NIS: pass inside its 95 % chi-square band, warn outside it but within "
+               f"{low:g} .. {high:g}, fail beyond (the band ignores correlated innovations, so long logs rarely "
+               "pass).")
 
 # ------------------------------------------------------------------ export
 st.subheader("Export")

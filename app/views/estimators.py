@@ -9,11 +9,13 @@ from estimators.api import DEFAULT_ESTIMATORS, ESTIMATORS, UNTRUSTED_PREFIX
 from estimators.inputs.records import HEADING_SOURCES
 
 RUN_KEY = "est_run"
+RANGE_KEY = "est_time_range"
 HEADING_LABELS = {"mag": "magnetometer", "sun": "sun vector", "mag+sun": "both"}
 
 log = session.require_log()
 root, sha256 = session.root(), session.selected_sha256()
 workspace = session.workspace()
+clock = figures.time_base(log)
 st.title(f"Estimators: {log.meta.source}")
 
 # ------------------------------------------------------------------ input quality (docs/estimators.md, 'Inputs the
@@ -115,12 +117,17 @@ def comparison_plots() -> None:
     (only the view shown is computed; reruns alone on a change)."""
     panel = st.segmented_control("Show", [*PANELS, "Track", "Errors", INNOVATIONS], default="Attitude",
                                  key="est_panel")
+    span = figures.time_span(log)
+    st.session_state[RANGE_KEY] = figures.clamp_window(st.session_state.get(RANGE_KEY), span)
+    window = st.slider("Time range [s since log start]", *span, step=0.01, format="%.2f", key=RANGE_KEY,
+                       help="Every time chart below shows this range, with the samples in it at full resolution "
+                            "and the y axes fitted to them (the track: the part flown in it).")
     if panel == INNOVATIONS:
-        innovation_plots()
+        innovation_plots(window)
     elif panel == "Track":
         tracks = {name: frame for name, frame in result.quantities.items() if frame["north_m"].notna().any()}
         if tracks:
-            st.plotly_chart(figures.track_figure(tracks), key="est_track")
+            st.plotly_chart(figures.track_figure(tracks, time_base=clock, window=window), key="est_track")
         else:
             st.info("No position to draw: the log has no GPS fix (the local NED origin).")
     elif panel == "Errors":
@@ -128,29 +135,34 @@ def comparison_plots() -> None:
             st.info("No reference to compute errors against.")
         else:
             st.plotly_chart(figures.quantity_figure(result.errors, ERROR_ROWS,
-                                                    title=f"Errors against the {result.reference}"), key="est_errors")
+                                                    title=f"Errors against the {result.reference}",
+                                                    time_base=clock, window=window), key="est_errors")
     elif panel is not None:
-        st.plotly_chart(figures.quantity_figure(result.quantities, PANELS[panel], title=panel), key="est_states")
+        st.plotly_chart(figures.quantity_figure(result.quantities, PANELS[panel], title=panel, time_base=clock,
+                                                window=window), key="est_states")
 
 
-def innovation_plots() -> None:
+def innovation_plots(window: tuple[float, float]) -> None:
     """Consistency summary, then the innovations and NIS of one estimator's sensor."""
     summary = adapters.nis_summary(root, run_id)
-    st.dataframe(summary, hide_index=True, key="nis_summary")
+    st.dataframe(tables.verdict_style(tables.with_nis_verdicts(summary)), hide_index=True, key="nis_summary",
+                 column_config={"why": st.column_config.TextColumn("why", width="large")})
     left, middle, right = st.columns(3)
     estimator = left.selectbox("Estimator", list(report), key="est_diag_estimator")
     sensor = middle.selectbox("Sensor", list(summary.loc[summary["estimator"] == estimator, "sensor"]),
                               key="est_diag_sensor")
-    window = right.select_slider("NIS window [updates]", [10, 20, 50, 100, 200, 500], value=50, key="est_window")
+    nis_window = right.select_slider("NIS window [updates]", [10, 20, 50, 100, 200, 500], value=50,
+                                     key="est_window")
     if sensor is None:
         st.info(f"{estimator} fused no measurement.")
         return
     rows = adapters.sensor_diagnostics(root, run_id, estimator, sensor)
     units = {str(c): comparison.innovation_unit(sensor, str(c)) for c in rows["component"].unique()}
-    st.plotly_chart(figures.innovation_figure(rows, units, title=f"{estimator}: {sensor} innovations"),
-                    key="est_innovations")
-    st.plotly_chart(figures.nis_figure(adapters.moving_nis(root, run_id, estimator, sensor, window), window,
-                                       comparison.nis_band(window), title=f"{estimator}: {sensor} NIS"),
+    st.plotly_chart(figures.innovation_figure(rows, units, title=f"{estimator}: {sensor} innovations",
+                                              time_base=clock, window=window), key="est_innovations")
+    st.plotly_chart(figures.nis_figure(adapters.moving_nis(root, run_id, estimator, sensor, nis_window),
+                                       nis_window, comparison.nis_band(nis_window),
+                                       title=f"{estimator}: {sensor} NIS", time_base=clock, time_window=window),
                     key="est_nis")
 
 
@@ -158,7 +170,10 @@ st.subheader("Comparison")
 comparison_plots()
 
 st.subheader("Download")
+st.caption("Each table keeps the log-clock `time_s` and adds `time_since_start_s` (seconds since the log start).")
 columns = st.columns(4)
 for k, (table, suffix) in enumerate([(t, s) for t in ("states", "diagnostics") for s in ("parquet", "csv")]):
-    columns[k].download_button(f"{table} (.{suffix})", adapters.run_file(root, run_id, table, suffix),
-                               file_name=f"{sha256[:8]}_{run_id}_{table}.{suffix}", key=f"download_{table}_{suffix}")
+    columns[k].download_button(
+        f"{table} (.{suffix})", lambda table=table, suffix=suffix: comparison.table_download(
+            adapters.run_table(root, run_id, table), clock, suffix),
+        file_name=f"{sha256[:8]}_{run_id}_{table}.{suffix}", key=f"download_{table}_{suffix}")

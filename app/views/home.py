@@ -22,7 +22,7 @@ if sha256 is not None:
     with session.input_errors(stop=False):  # an unreadable log must not hide the upload form
         log = adapters.stored_log(session.root(), sha256)
         columns = st.columns(4)
-        columns[0].metric("Duration", tables.format_duration(log.meta.duration_s))
+        columns[0].metric("Duration", tables.duration_text(log.meta.duration_s))
         columns[1].metric("Vehicle", tables.vehicle_name(log.meta.vehicle_type).split(" (")[0])
         columns[2].metric("Streams", len(log.meta.streams))
         columns[3].metric("Estimator runs", len(workspace.list_runs(sha256)))

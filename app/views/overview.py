@@ -8,12 +8,14 @@ from app import adapters, figures, session, tables
 
 log = session.require_log()
 meta = log.meta
+clock = figures.time_base(log)
+RANGE_KEY = "overview_time_range"
 st.title(f"Overview: {meta.source}")
 
 missing = tables.missing_streams(log)
 sensors_missing = missing[missing["stream"].isin(tables.SENSOR_STREAMS)]
 columns = st.columns(4)
-columns[0].metric("Data duration", tables.format_duration(meta.duration_s),
+columns[0].metric("Data duration", tables.duration_text(meta.duration_s),
                   help=f"first to last IMU sample: {meta.start_time_s:.3f} .. {meta.end_time_s:.3f} s (log clock)")
 columns[1].metric("Streams", len(meta.streams))
 columns[2].metric("Missing sensors", len(sensors_missing))
@@ -42,11 +44,21 @@ if meta.warnings:
             st.warning(warning)
 
 st.subheader("Streams")
-st.dataframe(tables.streams_table(meta), hide_index=True, placeholder="–", column_config={
+st.dataframe(clock.shift(tables.streams_table(meta), ["longest_gap_at_s"]), hide_index=True, placeholder="–",
+             column_config={
     "rate_hz": st.column_config.NumberColumn("rate [Hz]", format="%.1f"),
     "longest_gap_s": st.column_config.NumberColumn("longest gap [s]", format="%.2f"),
-    "longest_gap_at_s": st.column_config.NumberColumn("longest gap at [s]", format="%.2f"),
+    "longest_gap_at_s": st.column_config.NumberColumn("longest gap at [s since start]", format="%.2f"),
 })
+
+
+def time_range_slider() -> tuple[float, float]:
+    """The page's shared time range [s since start]: every time chart shows it, sliced at full resolution."""
+    span = figures.time_span(log)
+    st.session_state[RANGE_KEY] = figures.clamp_window(st.session_state.get(RANGE_KEY), span)
+    return st.slider("Time range [s since log start]", *span, step=0.01, format="%.2f", key=RANGE_KEY,
+                     help="Every time chart of the page shows this range (the track only the part flown in it), "
+                          "with the samples in it at full resolution and the y axes fitted to them.")
 
 
 @st.fragment
@@ -62,16 +74,19 @@ def flight_plots() -> None:
     shown = st.multiselect("Sources", sources, default=sources, key="overview_sources")
     show_phases = st.toggle("Shade flight phases", value=True, key="overview_phases")
     phases = adapters.flight_phases(root, sha256)
+    window = time_range_slider()
     left, right = st.columns([2, 3])
     if "GPS" not in tracks:
         left.info("No GPS fix: the track is the onboard local position about PX4's own origin.")
-    left.plotly_chart(figures.track_figure({k: v for k, v in tracks.items() if k in shown}), key="track")
+    left.plotly_chart(figures.track_figure({k: v for k, v in tracks.items() if k in shown}, time_base=clock,
+                                           window=window), key="track")
     right.plotly_chart(figures.altitude_figure({k: v for k, v in altitudes.items() if k in shown},
-                                               phases if show_phases else None), key="altitude")
+                                               phases if show_phases else None, time_base=clock, window=window),
+                       key="altitude")
     st.subheader("Flight phases")
-    st.dataframe(phases, hide_index=True, column_config={
-        "start_s": st.column_config.NumberColumn("start [s]", format="%.1f"),
-        "end_s": st.column_config.NumberColumn("end [s]", format="%.1f"),
+    st.dataframe(clock.shift(phases, ["start_s", "end_s"]), hide_index=True, column_config={
+        "start_s": st.column_config.NumberColumn("start [s since start]", format="%.1f"),
+        "end_s": st.column_config.NumberColumn("end [s since start]", format="%.1f"),
         "duration_s": st.column_config.NumberColumn("duration [s]", format="%.1f"),
     })
 

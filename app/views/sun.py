@@ -11,6 +11,8 @@ from ingest import SunDevice
 
 log = session.require_log()
 root, sha256 = session.root(), session.selected_sha256()
+clock = figures.time_base(log)
+RANGE_KEY = "sun_time_range"
 st.title(f"Sun vector: {log.meta.source}")
 if not log.has("sun"):
     st.info("This log has no sun-device data. Upload the photocell CSV (and its device JSON) together with the "
@@ -39,10 +41,16 @@ columns[2].metric("With a faulty cell", f"{100 * (states == sun_compare.CELL_FAU
 faulty_share = (states == sun_compare.CELL_FAULTY).mean(axis=0)
 columns[3].metric("Most often faulty", f"cell {int(np.argmax(faulty_share)) + 1}" if faulty_share.any() else "none")
 
+span = figures.time_span(log)
+st.session_state[RANGE_KEY] = figures.clamp_window(st.session_state.get(RANGE_KEY), span)
+window = st.slider("Time range [s since log start]", *span, step=0.01, format="%.2f", key=RANGE_KEY,
+                   help="Every time chart of the page shows this range, with the samples in it at full resolution "
+                        "and the y axes fitted to them.")
 currents_ma = {f"cell {k + 1}": log["sun"][column] * 1e3 for k, column in enumerate(log["sun"].columns)}
-st.plotly_chart(figures.time_series_figure(currents_ma, "current [mA]", title="Photocell currents"), key="currents")
-st.plotly_chart(figures.cell_state_figure(solution["time_s"].to_numpy(), states, sun_compare.CELL_STATE_NAMES),
-                key="cells")
+st.plotly_chart(figures.time_series_figure(currents_ma, "current [mA]", title="Photocell currents", time_base=clock,
+                                           window=window), key="currents")
+st.plotly_chart(figures.cell_state_figure(solution["time_s"].to_numpy(), states, sun_compare.CELL_STATE_NAMES,
+                                          time_base=clock, window=window), key="cells")
 st.dataframe(pd.DataFrame({"cell": [f"cell {k + 1}" for k in range(states.shape[1])],
                            "lit [%]": 100 * (states == sun_compare.CELL_LIT).mean(axis=0),
                            "faulty [%]": 100 * faulty_share}).set_index("cell").T.round(1), key="cell_shares")
@@ -66,11 +74,13 @@ else:
         frames[label] = pd.DataFrame({"time_s": time_s, "azimuth_deg": azimuth, "elevation_deg": elevation})
     st.plotly_chart(figures.quantity_figure(
         frames, [("azimuth_deg", "azimuth [deg]"), ("elevation_deg", "elevation [deg]")],
-        title=f"Body-frame sun direction: photocells vs ephemeris + {source} attitude"), key="sun_angles")
+        title=f"Body-frame sun direction: photocells vs ephemeris + {source} attitude", time_base=clock,
+        window=window), key="sun_angles")
     error = solution.set_index("time_s")[f"angle_{source}_deg"].dropna()
     columns = st.columns(3)
     columns[0].metric("Median angle error", f"{error.median():.2f} deg")
     columns[1].metric("95th percentile", f"{error.quantile(0.95):.2f} deg")
     columns[2].metric("RMS", f"{np.sqrt((error**2).mean()):.2f} deg")
     st.plotly_chart(figures.time_series_figure({"sun device": error}, "angle to the prediction [deg]",
-                                               title="Angular error"), key="sun_error")
+                                               title="Angular error", time_base=clock, window=window),
+                    key="sun_error")
