@@ -63,6 +63,32 @@ def duration_text(duration_s: float) -> str:
     return f"{minutes} min {seconds:04.1f} s" if minutes else f"{seconds:.1f} s"
 
 
+#: Median barometric minus GPS altitude [m] above which the Overview explains the offset.
+BARO_GPS_NOTE_M = 10.0
+
+
+def baro_gps_altitude_note(altitudes: dict[str, pd.Series], qnh_hpa: float | None) -> str | None:
+    """A sentence explaining the median offset of the barometric altitude from the GPS altitude [m] when it exceeds
+    :data:`BARO_GPS_NOTE_M` (None otherwise, or without both sources).
+
+    The barometric altitude is a pressure altitude from the log's QNH (``SENS_BARO_QNH``, 1013.25 hPa by default):
+    the day's sea-level pressure shifts it by about 8 m per hPa, so tens of metres off GPS is the weather, not a
+    fault; the estimators estimate this offset (barometer-offset state)."""
+    baro, gps = altitudes.get("barometer"), altitudes.get("GPS")
+    if baro is None or gps is None or len(baro) < 2 or len(gps) < 2:
+        return None
+    gps_at_baro = np.interp(baro.index.to_numpy(float), gps.index.to_numpy(float), gps.to_numpy(float),
+                            left=np.nan, right=np.nan)
+    offset_m = float(np.nanmedian(baro.to_numpy(float) - gps_at_baro)) if np.isfinite(gps_at_baro).any() else np.nan
+    if not np.isfinite(offset_m) or abs(offset_m) <= BARO_GPS_NOTE_M:
+        return None
+    qnh = f"{qnh_hpa:g} hPa" if qnh_hpa is not None else "the default 1013.25 hPa"
+    return (f"The barometric altitude sits {abs(offset_m):.0f} m {'above' if offset_m > 0 else 'below'} the GPS "
+            f"altitude (median). It is a pressure altitude from the log's QNH ({qnh}); a sea-level pressure "
+            f"{abs(offset_m) / 8.3:.0f} hPa {'lower' if offset_m > 0 else 'higher'} than that explains it. The "
+            "estimators estimate this offset; it is not a sensor fault.")
+
+
 def streams_table(meta: LogMetadata) -> pd.DataFrame:
     """One row per stream: topic, samples, rate [Hz], gap count, longest gap [s] and where it starts [s]."""
     rows = []

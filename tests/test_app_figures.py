@@ -208,3 +208,16 @@ def test_workspace_root_from_arguments_environment_or_default(monkeypatch, tmp_p
     monkeypatch.delenv(session.WORKSPACE_ENV)
     monkeypatch.chdir(tmp_path)
     assert session.workspace_root(["--other", "x"]) == tmp_path / "workspace"
+
+
+def test_baro_gps_altitude_note_explains_a_large_offset_only():
+    time_s = np.arange(0.0, 100.0, 1.0)
+    gps = pd.Series(500.0 + time_s, index=time_s)
+    far = {"GPS": gps, "barometer": pd.Series(gps.to_numpy() + 80.0, index=time_s + 0.5)}
+    note = tables.baro_gps_altitude_note(far, 1013.25)
+    assert note is not None and "80 m above" in note and "1013.25 hPa" in note and "lower" in note
+    below = {"GPS": gps, "barometer": pd.Series(gps.to_numpy() - 25.0, index=time_s)}
+    assert "25 m below" in tables.baro_gps_altitude_note(below, None)
+    near = {"GPS": gps, "barometer": pd.Series(gps.to_numpy() + 3.0, index=time_s)}
+    assert tables.baro_gps_altitude_note(near, 1013.25) is None
+    assert tables.baro_gps_altitude_note({"GPS": gps}, 1013.25) is None

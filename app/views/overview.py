@@ -83,6 +83,9 @@ def flight_plots() -> None:
     right.plotly_chart(figures.altitude_figure({k: v for k, v in altitudes.items() if k in shown},
                                                phases if show_phases else None, time_base=clock, window=window),
                        key="altitude")
+    baro_note = tables.baro_gps_altitude_note(altitudes, log.meta.parameters.get("SENS_BARO_QNH"))
+    if baro_note:
+        right.caption(baro_note)
     st.subheader("Flight phases")
     st.dataframe(clock.shift(phases, ["start_s", "end_s"]), hide_index=True, column_config={
         "start_s": st.column_config.NumberColumn("start [s since start]", format="%.1f"),
