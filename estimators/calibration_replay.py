@@ -17,6 +17,7 @@ from calib.calibration import Calibration
 from calib.filter_figures import calibration_figures
 from calib.tau import Innovations
 from estimators.config import config_from_calibration
+from estimators.consistency import MIN_UPDATES, NIS_WARNING_RANGE, channel_consistency
 from estimators.indirect.run import run as run_indirect
 from estimators.inputs.build import build_replay_inputs
 from estimators.three_stage.run import run as run_three_stage
@@ -52,7 +53,12 @@ def tau_replay(log: FlightLog, cal: Calibration) -> Callable[[float], Innovation
 
 def inflight_bias(log: FlightLog, cal: Calibration) -> InflightBias | None:
     """The error-state filter's final gyro and accelerometer bias states on ``log`` with the noise of ``cal`` (None
-    without GPS, when the accelerometer biases are not observable, or when the filter diverged)."""
+    without GPS, when the accelerometer biases are not observable, when the filter diverged, or when its GPS
+    channels are inconsistent: docs/calibration.md, 'From calibration to filter settings').
+
+    The accelerometer bias is observed through the GPS velocity and position; a GPS channel whose mean NIS is
+    above the warning limit means the filter explained a model error (a tilt pulled by a disturbed
+    magnetometer, say) with its bias states, while their covariance still says "converged"."""
     config = config_from_calibration(cal)
     inputs = build_replay_inputs(log, config, rate_hz=1.0)
     if not inputs.plan.has_gps:
@@ -60,6 +66,9 @@ def inflight_bias(log: FlightLog, cal: Calibration) -> InflightBias | None:
     run = run_indirect(log, inputs, config)
     final, std = run.report.details["final_state"], run.report.details["final_state_std"]
     if run.report.resets or not all(math.isfinite(final[f"b{k}{a}"]) for k in "ga" for a in "xyz"):
+        return None
+    if any(c.channel.startswith("gps_") and c.n_updates >= MIN_UPDATES and c.mean_nis > NIS_WARNING_RANGE[1]
+           for c in channel_consistency(run.diagnostics)):
         return None
     end_s = float(run.states["time_s"].iloc[-1])
     return InflightBias(source="full_state_indirect", window_s=(end_s, end_s),

@@ -28,6 +28,7 @@ from calib.figures import SOURCE_ALLAN, SOURCE_STILL, SOURCE_TUNED, SOURCE_USER,
 from calib.filter_figures import calibration_figures
 from estimators import environment
 from estimators.api import run_estimators
+from estimators.calibration_replay import inflight_bias
 from estimators.config import EstimatorConfig, config_from_calibration, config_from_figures
 from estimators.consistency import (
     LIKELIHOOD_CLIP_SIGMA,
@@ -372,3 +373,27 @@ def test_calibrate_tune_budget_below_two_is_refused(tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "--tune-budget" in err[0]
     assert not out.exists()
+
+
+# --- in-flight biases only from a consistent error-state replay --------------------------------------------------
+
+
+def test_inflight_bias_is_refused_when_the_replay_gps_channels_are_inconsistent():
+    """The disturbed magnetometer of ``mag_disturbed`` pulls the error-state filter's tilt, which its accelerometer
+    bias states then explain (measured: ba_x -0.76 m/s^2 with a posterior std of 0.01, GPS-velocity north mean NIS
+    71): those biases are not used, the three-stage filter falls back to the still-segment bias. On the calm
+    ``paper`` flight every GPS channel is consistent and the in-flight biases are used."""
+    disturbed = _sim_log("mag_disturbed")
+    cal = calibrate(disturbed, gravity=local_gravity(disturbed))
+    config = config_from_calibration(cal)
+    run = run_estimators(disturbed, estimators="full_state_indirect", config=config,
+                         rate_hz=1.0).reports["full_state_indirect"]
+    worst_gps = max(c["mean_nis"] for c in run.details["consistency"] if c["channel"].startswith("gps_"))
+    assert worst_gps > 3.0
+    assert inflight_bias(disturbed, cal) is None
+
+    calm = _sim_log("paper")
+    calm_cal = calibrate(calm, gravity=local_gravity(calm))
+    bias = inflight_bias(calm, calm_cal)
+    assert bias is not None and bias.source == "full_state_indirect"
+    assert np.all(np.isfinite(bias.accel_bias_m_s2))
