@@ -6,6 +6,7 @@ NIS summaries of the measurement updates. Pure pandas / NumPy (no Streamlit), te
 from __future__ import annotations
 
 import io
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
@@ -234,3 +235,95 @@ def table_download(frame: pd.DataFrame, time_base: TimeBase, suffix: str) -> byt
     buffer = io.BytesIO()
     out.to_parquet(buffer, index=False)
     return buffer.getvalue()
+
+
+# ---------------------------------------------------------------------------------------------------- several runs
+#: A run whose RMS differs from the baseline's by less than this share [%] counts as unchanged.
+RMS_CHANGE_TOLERANCE_PCT = 1.0
+#: Verdicts of a run's RMS against the baseline's (lower is better).
+IMPROVED, REGRESSED, UNCHANGED = "improved", "regressed", "unchanged"
+#: Columns of :func:`rms_comparison`.
+RMS_COMPARISON_COLUMNS = ("run", "estimator", "quantity", "RMS", "baseline RMS", "delta", "delta [%]", "change")
+
+
+def run_names(stored: pd.DataFrame) -> dict[str, str]:
+    """Readable name of every stored run (:meth:`app.workspace.Workspace.list_runs`, in its order): its ``name``
+    when the catalog has one, else its run id; names shared by several runs get the run id appended."""
+    ids = [str(run_id) for run_id in stored["run_id"]]
+    given = list(stored["name"]) if "name" in stored else [None] * len(ids)
+    names = [str(name).strip() if isinstance(name, str) and name.strip() else run_id
+             for name, run_id in zip(given, ids, strict=True)]
+    counts = pd.Series(names).value_counts()
+    return {run_id: f"{name} ({run_id[:8]})" if counts[name] > 1 and name != run_id else name
+            for run_id, name in zip(ids, names, strict=True)}
+
+
+def compare_runs(states_by_run: Mapping[str, pd.DataFrame], log: FlightLog) -> dict[str, Comparison]:
+    """:func:`compare` of every run (run name -> its states) of one log, in the given order."""
+    return {name: compare(states, log) for name, states in states_by_run.items()}
+
+
+def change_verdict(delta_pct: float, tolerance_pct: float = RMS_CHANGE_TOLERANCE_PCT) -> str:
+    """:data:`IMPROVED` / :data:`REGRESSED` / :data:`UNCHANGED` of an RMS change [%] against the baseline
+    (an RMS is an error: lower is better); ``""`` when it cannot be judged (NaN)."""
+    if not np.isfinite(delta_pct):
+        return ""
+    if abs(delta_pct) < tolerance_pct:
+        return UNCHANGED
+    return IMPROVED if delta_pct < 0 else REGRESSED
+
+
+def rms_comparison(rms_by_run: Mapping[str, pd.DataFrame], baseline: str,
+                   tolerance_pct: float = RMS_CHANGE_TOLERANCE_PCT) -> pd.DataFrame:
+    """Long table of the RMS errors of several runs against a baseline run.
+
+    Parameters
+    ----------
+    rms_by_run : mapping of run name -> pandas.DataFrame
+        :func:`rms_table` of every run (estimators as index, Table 2 labels as columns), in display order.
+    baseline : str
+        The run the others are compared with (one of ``rms_by_run``).
+    tolerance_pct : float
+        Relative change [%] below which a row is :data:`UNCHANGED`.
+
+    Returns
+    -------
+    pandas.DataFrame
+        :data:`RMS_COMPARISON_COLUMNS`, one row per run x estimator x quantity (runs, then estimators, then the
+        Table 2 quantities in order): ``RMS`` and the baseline's ``baseline RMS`` of the same estimator and
+        quantity, ``delta`` = RMS - baseline RMS (in the quantity's unit), ``delta [%]`` relative to the
+        baseline RMS, ``change`` (:func:`change_verdict`). The deltas are NaN where the baseline lacks the
+        estimator or quantity (or has a zero RMS, for the percentage); the baseline's own rows have zero deltas.
+    """
+    if baseline not in rms_by_run:
+        raise KeyError(f"baseline run {baseline!r} is not among the compared runs {list(rms_by_run)}")
+    reference = rms_by_run[baseline]
+    rows = []
+    for run, table in rms_by_run.items():
+        for estimator in table.index:
+            for quantity in table.columns:
+                value = float(table.at[estimator, quantity])
+                base = (float(reference.at[estimator, quantity])
+                        if estimator in reference.index and quantity in reference.columns else np.nan)
+                delta = value - base
+                percent = 100.0 * delta / base if np.isfinite(base) and base != 0.0 else np.nan
+                rows.append((run, str(estimator), str(quantity), value, base, delta, percent,
+                             change_verdict(percent, tolerance_pct)))
+    return pd.DataFrame(rows, columns=list(RMS_COMPARISON_COLUMNS))
+
+
+def nis_comparison(summaries: Mapping[str, pd.DataFrame]) -> pd.DataFrame:
+    """:func:`nis_summary` of several runs (run name -> summary) as one long table with a leading ``run``
+    column, the runs of each estimator and sensor next to each other (estimators and sensors in order of first
+    appearance, runs in the given order)."""
+    parts = [summary.assign(run=run) for run, summary in summaries.items()]
+    if not parts:
+        return pd.DataFrame(columns=["run", "estimator", "sensor", "updates", "accepted [%]", "mean NIS [-]",
+                                     "inside 95 % bound [%]"])
+    table = pd.concat(parts, ignore_index=True)
+    table = table[["run", *[column for column in table.columns if column != "run"]]]
+    order = {key: k for k, key in enumerate(dict.fromkeys(zip(table["estimator"], table["sensor"], strict=True)))}
+    runs = {run: k for k, run in enumerate(summaries)}
+    keys = [(order[(e, s)], runs[r]) for e, s, r in zip(table["estimator"], table["sensor"], table["run"],
+                                                        strict=True)]
+    return table.iloc[sorted(range(len(table)), key=keys.__getitem__)].reset_index(drop=True)

@@ -562,3 +562,146 @@ def cell_state_figure(time_s: np.ndarray, states: np.ndarray, names: Sequence[st
     if window is not None:
         fig.update_xaxes(range=[float(window[0]), float(window[1])], autorange=False)
     return fig
+
+
+# ---------------------------------------------------------------------------------------------------- run overlays
+#: Line dash per overlaid run (issue 14): the first selected run solid, then dashed, dotted, ...
+RUN_DASHES = ("solid", "dash", "dot", "dashdot", "longdash", "longdashdot")
+#: Separator of estimator and run in an overlaid series name.
+RUN_SEPARATOR = " · "
+#: Reference sources drawn once (from the first run holding them), never per run.
+REFERENCE_SOURCES = ("truth", "onboard")
+
+
+def run_style(estimator: str, run_index: int) -> tuple[str, str]:
+    """Colour and dash of an estimator's series in the ``run_index``-th overlaid run: the colour is the
+    estimator's (:data:`SOURCE_COLORS`; an unknown name gets a stable colour of :data:`AXIS_COLORS`), the dash is
+    the run's (:data:`RUN_DASHES`, cycling)."""
+    color = SOURCE_COLORS.get(estimator) or AXIS_COLORS[sum(map(ord, estimator)) % len(AXIS_COLORS)]
+    return color, RUN_DASHES[run_index % len(RUN_DASHES)]
+
+
+def run_series_name(estimator: str, run_name: str) -> str:
+    """Legend name of an estimator's series in an overlay: ``"<estimator> · <run name>"``."""
+    return f"{estimator}{RUN_SEPARATOR}{run_name}"
+
+
+def overlay_sources(per_run: Mapping[str, Mapping[str, pd.DataFrame]]
+                    ) -> tuple[dict[str, pd.DataFrame], dict[str, tuple[str, str]]]:
+    """Frames of several runs (run name -> source -> frame, in overlay order) as one mapping for the figure
+    builders, with the style of every series.
+
+    Estimators become ``"<estimator> · <run>"`` styled by :func:`run_style`; the references
+    (:data:`REFERENCE_SOURCES`) are the same in every run of a log and are kept once, under their own name and
+    style (:data:`SOURCE_COLORS`, :data:`REFERENCE_DASH`), after the estimators.
+    """
+    frames: dict[str, pd.DataFrame] = {}
+    styles: dict[str, tuple[str, str]] = {}
+    references: dict[str, pd.DataFrame] = {}
+    for index, (run_name, sources) in enumerate(per_run.items()):
+        for source, frame in sources.items():
+            if source in REFERENCE_SOURCES:
+                references.setdefault(source, frame)
+                continue
+            name = run_series_name(source, run_name)
+            frames[name], styles[name] = frame, run_style(source, index)
+    for source, frame in references.items():
+        frames[source] = frame
+        styles[source] = (SOURCE_COLORS[source], REFERENCE_DASH.get(source, "solid"))
+    return frames, styles
+
+
+def restyle(fig: go.Figure, styles: Mapping[str, tuple[str, str]]) -> go.Figure:
+    """Apply ``styles`` (series name -> colour, dash) to the line and marker traces of ``fig`` named by them
+    (a track's ``"<name> start"`` marker takes its series' colour)."""
+    for trace in fig.data:
+        name = trace.name or ""
+        style = styles.get(name) or styles.get(name.removesuffix(" start"))
+        if style is None:
+            continue
+        if trace.mode == "markers":
+            trace.marker.color = style[0]
+        else:
+            trace.line.color, trace.line.dash = style
+    return fig
+
+
+def overlay_quantity_figure(per_run: Mapping[str, Mapping[str, pd.DataFrame]], rows: Sequence[tuple[str, str]],
+                            *, title: str, max_points: int = MAX_POINTS, time_base: TimeBase | None = None,
+                            window: Sequence[float] | None = None) -> go.Figure:
+    """:func:`quantity_figure` of several runs overlaid (:func:`overlay_sources`): colour per estimator, dash per
+    run, the references once; ``time_base`` / ``window`` as for a single run."""
+    frames, styles = overlay_sources(per_run)
+    fig = quantity_figure(frames, rows, title=title, max_points=max_points, time_base=time_base, window=window)
+    return restyle(fig, styles)
+
+
+def overlay_track_figure(per_run: Mapping[str, Mapping[str, pd.DataFrame]], max_points: int = MAX_POINTS, *,
+                         time_base: TimeBase | None = None, window: Sequence[float] | None = None) -> go.Figure:
+    """:func:`track_figure` of several runs overlaid (:func:`overlay_sources`)."""
+    frames, styles = overlay_sources(per_run)
+    return restyle(track_figure(frames, max_points, time_base=time_base, window=window), styles)
+
+
+def overlay_innovation_figure(per_run: Mapping[str, pd.DataFrame], estimator: str, units: Mapping[str, str], *,
+                              title: str, max_points: int = MAX_POINTS, time_base: TimeBase | None = None,
+                              window: Sequence[float] | None = None) -> go.Figure:
+    """Innovations of one estimator's sensor in several runs (run name -> its diagnostics rows, in overlay
+    order): one row per component, one line per run (:func:`run_style`), the +-2 sqrt(S) envelope of the first
+    run that has the component in grey."""
+    components = list(dict.fromkeys(str(c) for part in per_run.values() for c in part["component"].unique()))
+    fig = make_subplots(rows=max(1, len(components)), cols=1, shared_xaxes=True, vertical_spacing=0.04)
+    options = {"max_points": max_points, "time_base": time_base, "window": window}
+    bounded: set[str] = set()
+    for index, (run_name, diagnostics) in enumerate(per_run.items()):
+        name = run_series_name(estimator, run_name)
+        color, dash = run_style(estimator, index)
+        for row, component in enumerate(components, start=1):
+            part = diagnostics.loc[diagnostics["component"].astype(str) == component]
+            if part.empty:
+                continue
+            time_s = part["time_s"].to_numpy(float)
+            if component not in bounded:
+                bound = 2.0 * np.sqrt(part["innovation_var"].to_numpy(float))
+                label = f"+-2 sqrt(S) · {run_name}"
+                for sign in (1.0, -1.0):
+                    fig.add_trace(line(time_s, sign * bound, label, color="#bbbbbb", legendgroup="bound",
+                                       showlegend=not bounded and sign > 0, **options), row=row, col=1)
+                bounded.add(component)
+            trace = line(time_s, part["innovation"].to_numpy(float), name, color=color, legendgroup=name,
+                         showlegend=not any(t.name == name for t in fig.data), **options)
+            trace.line.dash = dash
+            fig.add_trace(trace, row=row, col=1)
+    base_layout(fig, y_title="", height=90 + 160 * max(1, len(components)), title=title)
+    for row, component in enumerate(components, start=1):
+        fig.update_yaxes(title_text=f"{component} [{units.get(component, '-')}]", row=row, col=1)
+    _time_titles(fig, max(1, len(components)), time_base)
+    return apply_time_range(fig, window)
+
+
+def overlay_nis_figure(per_run: Mapping[str, pd.DataFrame], estimator: str, window: int,
+                       band: tuple[float, float], *, title: str, max_points: int = MAX_POINTS,
+                       time_base: TimeBase | None = None, time_window: Sequence[float] | None = None) -> go.Figure:
+    """:func:`nis_figure` of several runs (run name -> moving mean NIS, in overlay order): colour per component,
+    dash per run (:data:`RUN_DASHES`), series ``"<component>: <estimator> · <run>"``."""
+    fig = go.Figure()
+    components: list[str] = []
+    for index, (run_name, moving) in enumerate(per_run.items()):
+        dash = RUN_DASHES[index % len(RUN_DASHES)]
+        for component, part in moving.groupby("component", sort=False):
+            component = str(component)
+            if component not in components:
+                components.append(component)
+            trace = line(part["time_s"].to_numpy(float), part["mean_nis"].to_numpy(float),
+                         f"{component}: {run_series_name(estimator, run_name)}", max_points=max_points,
+                         color=AXIS_COLORS[components.index(component) % len(AXIS_COLORS)], time_base=time_base,
+                         window=time_window)
+            trace.line.dash = dash
+            fig.add_trace(trace)
+    fig.add_hrect(y0=band[0], y1=band[1], fillcolor="rgba(44,160,44,0.15)", line_width=0, layer="below")
+    fig.add_hline(y=1.0, line_dash="dash", line_color="#2ca02c",
+                  annotation_text=f"95 % chi-square band for {window} updates", annotation_position="top left")
+    base_layout(fig, x_title=TIME_TITLE if time_base is not None else LOG_CLOCK_TITLE,
+                y_title=f"mean NIS over {window} updates [-]", height=320, title=title)
+    fig.update_yaxes(type="log")
+    return apply_time_range(fig, time_window)

@@ -420,3 +420,52 @@ def fir_rows(editor: pd.DataFrame) -> tuple[tuple[str, float, int], ...]:
 
     return tuple((str(row.sensor), float(row.cutoff_hz) if row.cutoff_hz is not None else math.nan,
                   taps(row.numtaps)) for row in editor.itertuples())
+
+
+# ---------------------------------------------------------------------------------------------------- run comparison
+#: Marks and cell colours of an RMS against the baseline run (``app.comparison`` change verdicts).
+CHANGE_MARKS = {"improved": "▼", "regressed": "▲", "unchanged": "≈"}
+CHANGE_COLORS = {"improved": "rgba(44,160,44,0.25)", "regressed": "rgba(214,39,40,0.25)"}
+
+
+def rms_delta_cell(rms: float, delta: float, delta_pct: float, change: str, is_baseline: bool) -> str:
+    """Text of one cell of :func:`rms_delta_table`: the RMS, then (not for the baseline) the difference to the
+    baseline, absolute and in %, and the change mark (▼ improved, ▲ regressed, ≈ unchanged)."""
+    if not math.isfinite(rms):
+        return "–"
+    if is_baseline:
+        return f"{rms:.2f} (baseline)"
+    if not math.isfinite(delta):
+        return f"{rms:.2f} (no baseline)"
+    percent = f"{delta_pct:+.1f} %" if math.isfinite(delta_pct) else "– %"
+    return f"{rms:.2f} ({delta:+.2f}, {percent}) {CHANGE_MARKS.get(change, '')}".rstrip()
+
+
+def rms_delta_table(comparison: pd.DataFrame, baseline: str) -> pd.DataFrame:
+    """:func:`app.comparison.rms_comparison` as one row per run x estimator (index ``run``, ``estimator``; the
+    baseline's rows first) and one text column per Table 2 quantity (:func:`rms_delta_cell`)."""
+    cells = comparison.assign(cell=[
+        rms_delta_cell(float(rms), float(delta), float(percent), str(change), run == baseline)
+        for run, rms, delta, percent, change in zip(comparison["run"], comparison["RMS"], comparison["delta"],
+                                                    comparison["delta [%]"], comparison["change"], strict=True)])
+    return _rms_pivot(cells, "cell", baseline)
+
+
+def rms_delta_style(comparison: pd.DataFrame, baseline: str):
+    """:func:`rms_delta_table` as a pandas Styler: improved cells green, regressed cells red."""
+    table = rms_delta_table(comparison, baseline)
+    changes = _rms_pivot(comparison, "change", baseline).reindex_like(table)
+    css = changes.map(lambda change: f"background-color: {CHANGE_COLORS[change]}" if change in CHANGE_COLORS
+                      else "")
+    return table.style.apply(lambda _: css, axis=None)
+
+
+def _rms_pivot(frame: pd.DataFrame, values: str, baseline: str) -> pd.DataFrame:
+    runs = list(dict.fromkeys([baseline, *frame["run"]]))
+    estimators = list(dict.fromkeys(frame["estimator"]))
+    quantities = list(dict.fromkeys(frame["quantity"]))
+    wide = frame.pivot(index=["run", "estimator"], columns="quantity", values=values)
+    order = sorted(wide.index, key=lambda key: (runs.index(key[0]), estimators.index(key[1])))
+    wide = wide.reindex(index=pd.MultiIndex.from_tuples(order, names=["run", "estimator"]), columns=quantities)
+    wide.columns.name = None
+    return wide

@@ -8,7 +8,13 @@ from app import adapters, comparison, figures, runs, session, tables
 from estimators.api import DEFAULT_ESTIMATORS, ESTIMATORS, UNTRUSTED_PREFIX
 from estimators.inputs.records import HEADING_SOURCES
 
+#: The run shown (the baseline of several): the Map page opens on it.
 RUN_KEY = "est_run"
+#: The runs shown, overlaid (issue 14), and the one the others are compared with.
+RUNS_KEY = "est_runs"
+BASELINE_KEY = "est_baseline"
+#: Most runs overlaid at once (the comparisons of that many stay cached: adapters.run_comparison).
+MAX_RUNS = 4
 RANGE_KEY = "est_time_range"
 HEADING_LABELS = {"mag": "magnetometer", "sun": "sun vector", "mag+sun": "both"}
 
@@ -58,38 +64,76 @@ if submitted:
         st.toast(f"Run {run_id} stored in the workspace.")
     else:
         st.info("A run with these settings is stored already: showing it.")
-    st.session_state[RUN_KEY] = run_id
+    selection = [r for r in st.session_state.get(RUNS_KEY, []) if r in set(workspace.list_runs(sha256)["run_id"])]
+    st.session_state[RUNS_KEY] = (selection if run_id in selection else [*selection, run_id])[-MAX_RUNS:]
 
 stored = workspace.list_runs(sha256)
 if stored.empty:
     st.info("No estimator run for this log yet: choose the settings above and press **Run estimators**.")
     st.stop()
-labels = dict(zip(stored["run_id"], tables.runs_table(stored, workspace.list_logs()).apply(
+
+# ------------------------------------------------------------------ the runs shown (issue 14: several overlaid)
+names = comparison.run_names(stored)
+settings_text = dict(zip(stored["run_id"], tables.runs_table(stored, workspace.list_logs()).apply(
     lambda row: f"{row['created (UTC)']} · {row['estimators']} · heading {row['heading aid']} · {row['R']}",
     axis=1), strict=True))
-if st.session_state.get(RUN_KEY) not in labels:
-    st.session_state[RUN_KEY] = next(iter(labels))
-run_id = st.selectbox("Run", list(labels), format_func=labels.get, key=RUN_KEY)
-report = adapters.run_report(root, run_id)
-result = adapters.run_comparison(root, sha256, run_id)
+labels = {run_id: f"{names[run_id]} · {text}" for run_id, text in settings_text.items()}
+kept = [run_id for run_id in st.session_state.get(RUNS_KEY, []) if run_id in labels][:MAX_RUNS]
+if not kept:  # the default: the run shown before (the Map page reads it), else the newest
+    previous = st.session_state.get(RUN_KEY)
+    kept = [previous if previous in labels else next(iter(labels))]
+st.session_state[RUNS_KEY] = kept
+selected = st.multiselect("Runs", list(labels), format_func=labels.get, key=RUNS_KEY, max_selections=MAX_RUNS,
+                          help="Pick several runs of this log (default vs calibrated R, magnetometer vs sun "
+                               "heading, ...): every chart overlays them, one colour per estimator and one dash "
+                               "style per run, and the tables compare them with the baseline.")
+if not selected:
+    st.info("Select at least one run above.")
+    st.stop()
+multi = len(selected) > 1
+if multi:
+    if st.session_state.get(BASELINE_KEY) not in selected:
+        st.session_state[BASELINE_KEY] = selected[0]
+    baseline = st.selectbox("Baseline run", selected, format_func=names.get, key=BASELINE_KEY,
+                            help="The RMS table gives every run's difference to this run.")
+    st.caption("Line styles: " + ", ".join(f"{names[run_id]} {figures.RUN_DASHES[k % len(figures.RUN_DASHES)]}"
+                                          for k, run_id in enumerate(selected)) + ".")
+else:
+    baseline = selected[0]
+st.session_state[RUN_KEY] = baseline
+run_id = baseline
+shown = {names[run_id]: run_id for run_id in selected}  # run name -> run id, in overlay order
+reports = {name: adapters.run_report(root, rid) for name, rid in shown.items()}
+results = {name: adapters.run_comparison(root, sha256, rid) for name, rid in shown.items()}
+report, result = reports[names[baseline]], results[names[baseline]]
 
-untrusted = dict.fromkeys(w for facts in report.values() for w in facts["warnings"] if w.startswith(UNTRUSTED_PREFIX))
-for warning in untrusted:  # a forced run's refused inputs, once for all estimators, never collapsed
-    st.error(warning)
-for name, facts in report.items():
-    # inconsistent channels of a calibrated run are never hidden in the collapsed details
-    for warning in facts["warnings"]:
-        if "inconsistent" in warning:
-            st.warning(warning)
-    with st.expander(f"{name}: used {', '.join(facts['used']) or 'nothing'}; "
-                     f"{facts['timings_s'].get('total', float('nan')):.1f} s"):
-        for reason in (*[f"skipped {k}: {v}" for k, v in facts["skipped"].items()], *facts["degradations"],
-                       *facts["warnings"]):
-            st.warning(reason)
-        if facts["details"].get("calibration"):
-            st.caption("Calibrated figures: source and what this estimator did with each")
-            st.dataframe(pd.DataFrame(facts["details"]["calibration"]), hide_index=True, key=f"calibration_{name}")
-        st.json(facts["details"], expanded=False)
+
+def widget_key(base: str, index: int) -> str:
+    """A widget key unique per shown run (the single-run page keeps its historical keys)."""
+    return f"{base}_{index}" if multi else base
+
+
+for index, (run_name, run_report) in enumerate(reports.items()):
+    prefix = f"{run_name}: " if multi else ""
+    untrusted = dict.fromkeys(w for facts in run_report.values() for w in facts["warnings"]
+                              if w.startswith(UNTRUSTED_PREFIX))
+    for warning in untrusted:  # a forced run's refused inputs, once for all estimators, never collapsed
+        st.error(prefix + warning)
+    for name, facts in run_report.items():
+        # inconsistent channels of a calibrated run are never hidden in the collapsed details
+        for warning in facts["warnings"]:
+            if "inconsistent" in warning:
+                st.warning(prefix + warning)
+        with st.expander(f"{prefix}{name}: used {', '.join(facts['used']) or 'nothing'}; "
+                         f"{facts['timings_s'].get('total', float('nan')):.1f} s"):
+            for reason in (*[f"skipped {k}: {v}" for k, v in facts["skipped"].items()], *facts["degradations"],
+                           *facts["warnings"]):
+                st.warning(reason)
+            if facts["details"].get("calibration"):
+                st.caption("Calibrated figures: source and what this estimator did with each")
+                st.dataframe(pd.DataFrame(facts["details"]["calibration"]), hide_index=True,
+                             key=widget_key(f"calibration_{name}", index))
+            st.json(facts["details"], expanded=False)
 
 st.subheader("RMS errors (paper Table 2 layout)")
 if result.reference is None:
@@ -98,7 +142,19 @@ else:
     st.caption(f"Against the {'ground truth' if result.reference == 'truth' else 'onboard estimate (no truth)'};"
                " position = horizontal distance, wind = horizontal vector difference, course where ground speed "
                f">= {comparison.MIN_COURSE_SPEED_M_S:g} m/s.")
-    st.table(adapters.rms_table(root, sha256, run_id).style.format("{:.2f}", na_rep="–"))
+    if not multi:
+        st.table(adapters.rms_table(root, sha256, run_id).style.format("{:.2f}", na_rep="–"))
+    else:
+        deltas = comparison.rms_comparison({name: adapters.rms_table(root, sha256, rid) for name, rid in shown.items()},
+                                           names[baseline])
+        st.caption(f"Every run against the baseline **{names[baseline]}**: RMS (difference, in the quantity's "
+                   f"unit, and in % of the baseline's RMS); ▼ green improved, ▲ red regressed, ≈ within "
+                   f"{comparison.RMS_CHANGE_TOLERANCE_PCT:g} %.")
+        st.table(tables.rms_delta_style(deltas, names[baseline]))
+        with st.expander("The comparison as a long table"):
+            st.dataframe(deltas, hide_index=True, key="rms_comparison",
+                         column_config={c: st.column_config.NumberColumn(c, format="%.3f")
+                                        for c in ("RMS", "baseline RMS", "delta", "delta [%]")})
 
 PANELS = {
     "Attitude": [("roll_deg", "roll [deg]"), ("pitch_deg", "pitch [deg]"), ("yaw_deg", "yaw [deg]")],
@@ -114,7 +170,7 @@ ERROR_ROWS = [(column, f"{label.split(' (')[0].lower()} error [{unit}]")
 @st.fragment
 def comparison_plots() -> None:
     """One view at a time: states of every source, their errors against the reference, or the innovations and NIS
-    (only the view shown is computed; reruns alone on a change)."""
+    (only the view shown is computed; reruns alone on a change). Several selected runs are overlaid."""
     panel = st.segmented_control("Show", [*PANELS, "Track", "Errors", INNOVATIONS], default="Attitude",
                                  key="est_panel")
     span = figures.time_span(log)
@@ -123,20 +179,32 @@ def comparison_plots() -> None:
                        help="Every time chart below shows this range, with the samples in it at full resolution "
                             "and the y axes fitted to them (the track: the part flown in it).")
     if panel == INNOVATIONS:
-        innovation_plots(window)
+        (innovation_overlays if multi else innovation_plots)(window)
     elif panel == "Track":
-        tracks = {name: frame for name, frame in result.quantities.items() if frame["north_m"].notna().any()}
-        if tracks:
-            st.plotly_chart(figures.track_figure(tracks, time_base=clock, window=window), key="est_track")
-        else:
+        tracks = {name: {source: frame for source, frame in run.quantities.items() if frame["north_m"].notna().any()}
+                  for name, run in results.items()}
+        if not any(tracks.values()):
             st.info("No position to draw: the log has no GPS fix (the local NED origin).")
+        elif multi:
+            st.plotly_chart(figures.overlay_track_figure(tracks, time_base=clock, window=window), key="est_track")
+        else:
+            st.plotly_chart(figures.track_figure(tracks[names[run_id]], time_base=clock, window=window),
+                            key="est_track")
     elif panel == "Errors":
         if not result.errors:
             st.info("No reference to compute errors against.")
+        elif multi:
+            st.plotly_chart(figures.overlay_quantity_figure(
+                {name: run.errors for name, run in results.items()}, ERROR_ROWS,
+                title=f"Errors against the {result.reference}", time_base=clock, window=window), key="est_errors")
         else:
             st.plotly_chart(figures.quantity_figure(result.errors, ERROR_ROWS,
                                                     title=f"Errors against the {result.reference}",
                                                     time_base=clock, window=window), key="est_errors")
+    elif panel is not None and multi:
+        st.plotly_chart(figures.overlay_quantity_figure({name: run.quantities for name, run in results.items()},
+                                                        PANELS[panel], title=panel, time_base=clock, window=window),
+                        key="est_states")
     elif panel is not None:
         st.plotly_chart(figures.quantity_figure(result.quantities, PANELS[panel], title=panel, time_base=clock,
                                                 window=window), key="est_states")
@@ -166,14 +234,47 @@ def innovation_plots(window: tuple[float, float]) -> None:
                     key="est_nis")
 
 
+def innovation_overlays(window: tuple[float, float]) -> None:
+    """The consistency summaries of the selected runs side by side (a ``run`` column, the runs of each
+    estimator and sensor adjacent), then one estimator's sensor in every run overlaid."""
+    summaries = {name: adapters.nis_summary(root, rid) for name, rid in shown.items()}
+    table = comparison.nis_comparison(summaries)
+    st.dataframe(tables.verdict_style(tables.with_nis_verdicts(table)), hide_index=True, key="nis_summary",
+                 column_config={"why": st.column_config.TextColumn("why", width="large")})
+    left, middle, right = st.columns(3)
+    estimators = list(dict.fromkeys([*(e for r in reports.values() for e in r), *table["estimator"]]))
+    estimator = left.selectbox("Estimator", estimators, key="est_diag_estimator")
+    sensor = middle.selectbox("Sensor", list(dict.fromkeys(table.loc[table["estimator"] == estimator, "sensor"])),
+                              key="est_diag_sensor")
+    nis_window = right.select_slider("NIS window [updates]", [10, 20, 50, 100, 200, 500], value=50,
+                                     key="est_window")
+    if sensor is None:
+        st.info(f"{estimator} fused no measurement in the selected runs.")
+        return
+    rows = {name: adapters.sensor_diagnostics(root, rid, estimator, sensor) for name, rid in shown.items()}
+    rows = {name: frame for name, frame in rows.items() if len(frame)}
+    units = {str(c): comparison.innovation_unit(sensor, str(c)) for frame in rows.values()
+             for c in frame["component"].unique()}
+    st.plotly_chart(figures.overlay_innovation_figure(rows, estimator, units,
+                                                      title=f"{estimator}: {sensor} innovations",
+                                                      time_base=clock, window=window), key="est_innovations")
+    moving = {name: adapters.moving_nis(root, shown[name], estimator, sensor, nis_window) for name in rows}
+    st.plotly_chart(figures.overlay_nis_figure(moving, estimator, nis_window, comparison.nis_band(nis_window),
+                                               title=f"{estimator}: {sensor} NIS", time_base=clock,
+                                               time_window=window), key="est_nis")
+
+
 st.subheader("Comparison")
 comparison_plots()
 
 st.subheader("Download")
 st.caption("Each table keeps the log-clock `time_s` and adds `time_since_start_s` (seconds since the log start).")
-columns = st.columns(4)
-for k, (table, suffix) in enumerate([(t, s) for t in ("states", "diagnostics") for s in ("parquet", "csv")]):
-    columns[k].download_button(
-        f"{table} (.{suffix})", lambda table=table, suffix=suffix: comparison.table_download(
-            adapters.run_table(root, run_id, table), clock, suffix),
-        file_name=f"{sha256[:8]}_{run_id}_{table}.{suffix}", key=f"download_{table}_{suffix}")
+for index, (run_name, shown_id) in enumerate(shown.items()):
+    if multi:
+        st.caption(f"Run **{run_name}**")
+    columns = st.columns(4)
+    for k, (table, suffix) in enumerate([(t, s) for t in ("states", "diagnostics") for s in ("parquet", "csv")]):
+        columns[k].download_button(
+            f"{table} (.{suffix})", lambda table=table, suffix=suffix, shown_id=shown_id: comparison.table_download(
+                adapters.run_table(root, shown_id, table), clock, suffix),
+            file_name=f"{sha256[:8]}_{shown_id}_{table}.{suffix}", key=widget_key(f"download_{table}_{suffix}", index))
