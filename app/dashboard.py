@@ -23,5 +23,6 @@ pages = [
     st.Page("views/estimators.py", title="Estimators", icon=":material/compare_arrows:"),
     st.Page("views/map.py", title="Map", icon=":material/map:"),
     st.Page("views/sun.py", title="Sun vector", icon=":material/wb_sunny:"),
+    st.Page("views/workspace.py", title="Workspace", icon=":material/inventory_2:"),
 ]
 st.navigation(pages).run()

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import re
 import sys
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
@@ -17,7 +18,7 @@ from pathlib import Path
 import streamlit as st
 
 from app import adapters
-from app.workspace import LogEntry, Workspace
+from app.workspace import LogEntry, Stored, Workspace
 from ingest import FlightLog, InputError
 
 WORKSPACE_ENV = "SOLARNAV_WORKSPACE"
@@ -106,3 +107,24 @@ def require_log() -> FlightLog:
         st.stop()
     with input_errors():
         return adapters.stored_log(root(), sha256)
+
+
+def markdown_text(text: str) -> str:
+    """``text`` with Markdown's special characters escaped (names shown in messages stay plain text)."""
+    return re.sub(r"([\\`*_{}\[\]()<>#+\-.!|~$:])", r"\\\1", str(text))
+
+
+def stored_message(stored: Stored, what: str) -> None:
+    """Tell the user that ``what`` was stored as ``stored.name``, or was already stored under that name."""
+    text = markdown_text(stored.message(what))
+    if stored.created:
+        st.success(text)
+    else:
+        st.info(text)
+
+
+def save_calibration(sha256: str, settings: dict, calibration_json: str) -> Stored:
+    """Store a calibration of the log (unless one with the same settings is stored) and say under which name."""
+    stored = workspace().store_calibration(sha256, settings, calibration_json)
+    stored_message(stored, "calibration")
+    return stored

@@ -28,6 +28,21 @@ Recovery (on every open, :meth:`Workspace.recover`)
       writer of any process is writing; otherwise it is left for a later open (an open never waits for an upload).
     A process that dies releases its locks (the kernel drops them), and SQLite rolls back its open transaction.
 
+Deleting an entry (:meth:`Workspace.delete`)
+    Under a shared lock, in one catalog write transaction, the rows are deleted (a log's calibrations and runs with
+    it) and each directory is moved to ``.staging/<kind>+<id>+<random>.deleting``; then the transaction commits and
+    the moved directories are removed. If the commit fails, the directories are moved back before the transaction
+    ends. A process dying before the commit leaves its rows listed (SQLite rolls back) and its directories in
+    staging: :meth:`Workspace.recover` moves them back, inside a write transaction, for every row still listed;
+    ``.deleting`` directories whose row is gone are removed. So a crash leaves an entry complete and listed, or gone.
+
+Names
+    Calibrations and runs have a readable ``name`` (default: log name, settings in short, time of day UTC),
+    distinct among the entries of that kind of one log; :meth:`Workspace.rename` changes it (and a log's display
+    name). Adding a calibration or run whose settings (canonical JSON) equal those of a stored entry of the same
+    log stores nothing and returns that entry (:class:`Stored` with ``created=False``). Catalogs from before the
+    names get the column (``ALTER TABLE``) and default names on open.
+
 A crash before the move leaves only staging debris; a crash between the move and the commit leaves an unlisted
 directory that the next open, or the next store of the same entry, removes. The catalog never lists a half-written
 entry, and an entry a store reported as stored is never removed.
@@ -67,11 +82,19 @@ CREATE TABLE IF NOT EXISTS logs (
     sha256 TEXT PRIMARY KEY, display_name TEXT NOT NULL, size_bytes INTEGER NOT NULL, added_utc TEXT NOT NULL,
     has_sun INTEGER NOT NULL DEFAULT 0);
 CREATE TABLE IF NOT EXISTS calibrations (
-    calib_id TEXT PRIMARY KEY, log_sha256 TEXT NOT NULL, settings_json TEXT NOT NULL, created_utc TEXT NOT NULL);
+    calib_id TEXT PRIMARY KEY, log_sha256 TEXT NOT NULL, settings_json TEXT NOT NULL, created_utc TEXT NOT NULL,
+    name TEXT);
 CREATE TABLE IF NOT EXISTS runs (
-    run_id TEXT PRIMARY KEY, log_sha256 TEXT NOT NULL, settings_json TEXT NOT NULL, created_utc TEXT NOT NULL);
+    run_id TEXT PRIMARY KEY, log_sha256 TEXT NOT NULL, settings_json TEXT NOT NULL, created_utc TEXT NOT NULL,
+    name TEXT);
 """
 _KINDS = {"logs": "sha256", "calibrations": "calib_id", "runs": "run_id"}
+#: Suffix of the directories a deletion moved to staging (restored by recovery while their row is listed).
+DELETING_SUFFIX = ".deleting"
+#: Separator of the parts of a default name.
+NAME_SEPARATOR = " \u00b7 "
+#: Characters a name of a calibration or run may not hold (Markdown and HTML markup), replaced by spaces.
+_MARKUP = re.compile(r"[<>\[\]`*_#|\\$~{}]")
 #: Tables of a stored estimator run.
 RUN_TABLES = ("states", "diagnostics")
 #: Lock file: shared by writers while they stage, exclusive for the staging clean-up.
@@ -129,6 +152,86 @@ def _fit(name: str, tag: str, max_length: int) -> str:
     return short + tag + ext
 
 
+class NameRejected(ValueError):
+    """A new name that is empty after sanitising or already taken."""
+
+
+def sanitize_label(name: str, max_length: int = MAX_NAME_LENGTH) -> str:
+    """A display-safe name of a calibration or run (Unicode kept: ``·``, ``τ``, ``+``, accents).
+
+    NFKC-normalised; control, format, surrogate and private-use characters and Markdown/HTML markup characters
+    become spaces; runs of white space become one space; cut to ``max_length``; stripped. May be empty.
+    """
+    text = unicodedata.normalize("NFKC", str(name))
+    text = "".join(" " if unicodedata.category(ch)[0] == "C" or ch.isspace() else ch for ch in text)
+    text = re.sub(r" +", " ", _MARKUP.sub(" ", text)).strip()
+    return text[:max_length].rstrip()
+
+
+def canonical_json(settings: dict) -> str:
+    """The identity of a settings dict: JSON with sorted keys and no spaces (lists keep their order)."""
+    return json.dumps(settings, sort_keys=True, separators=(",", ":"), ensure_ascii=False, default=str)
+
+
+def _number(value, digits: int = 2) -> str:
+    try:
+        return f"{float(value):.{digits}g}"
+    except (TypeError, ValueError):
+        return str(value)
+
+
+def _time_of_day(created_utc: str) -> str:
+    """``HH:MM`` of an ISO time stamp (the text itself when it is not one)."""
+    try:
+        return datetime.fromisoformat(created_utc).strftime("%H:%M")
+    except (TypeError, ValueError):
+        return str(created_utc)
+
+
+def default_calibration_name(log_name: str, settings: dict, created_utc: str) -> str:
+    """``paper.ulg · calib auto-τ 0.27 · 14:03`` (window, η noise and FIR count when set)."""
+    method = settings.get("tau_method")
+    tau = settings.get("tau")
+    parts = ["calib"]
+    if tau is not None:
+        parts.append(f"{'auto-' if method in ('likelihood', 'nis') else ''}\u03c4 {_number(tau)}")
+    window = settings.get("window_s")
+    if isinstance(window, list | tuple) and len(window) == 2:
+        parts.append(f"{_number(window[0], 4)}\u2013{_number(window[1], 4)} s")
+    if settings.get("noise") not in (None, "sigma"):
+        parts.append(str(settings["noise"]))
+    summary = " ".join(parts)
+    return _join_name(log_name, [summary], created_utc)
+
+
+def default_run_name(log_name: str, settings: dict, created_utc: str) -> str:
+    """``paper.ulg · 3 estimators · mag+sun · calibrated · 14:05`` (rate and untrusted replay when set)."""
+    estimators = list(settings.get("estimators", ()))
+    parts = [estimators[0] if len(estimators) == 1 else f"{len(estimators)} estimators"] if estimators else []
+    if settings.get("heading"):
+        parts.append(str(settings["heading"]))
+    noise = settings.get("noise")
+    if noise == "default":
+        parts.append("default R")
+    elif noise == "calibrated":
+        parts.append("calibrated")
+    elif noise:
+        parts.append(f"calib {str(noise)[:6]}")
+    if settings.get("rate_hz") not in (None, 50, 50.0):
+        parts.append(f"{_number(settings['rate_hz'], 3)} Hz")
+    if settings.get("allow_untrusted"):
+        parts.append("untrusted")
+    return _join_name(log_name, parts or ["run"], created_utc)
+
+
+def _join_name(log_name: str, parts: list[str], created_utc: str) -> str:
+    """``log · parts · HH:MM``, the log name cut so that the whole fits (numbering needs a few characters)."""
+    tail = NAME_SEPARATOR.join([*parts, _time_of_day(created_utc)])
+    room = MAX_NAME_LENGTH - 6 - len(tail) - len(NAME_SEPARATOR)
+    head = sanitize_label(log_name)[:max(room, 8)].rstrip()
+    return sanitize_label(NAME_SEPARATOR.join([head, tail]) if head else tail, MAX_NAME_LENGTH - 6)
+
+
 def _now_utc() -> str:
     return datetime.now(UTC).isoformat(timespec="seconds")
 
@@ -142,6 +245,21 @@ class LogEntry:
     size_bytes: int
     added_utc: str
     has_sun: bool
+
+
+@dataclass(frozen=True)
+class Stored:
+    """The outcome of storing a calibration or run: its id and name, and whether it was new (False: an entry
+    with the same settings was stored already, and nothing was written)."""
+
+    id: str
+    name: str
+    created: bool
+
+    def message(self, what: str) -> str:
+        """``Saved calibration "name".`` or ``Already saved as "name".`` (for the UI)."""
+        return f"Saved {what} \u201c{self.name}\u201d." if self.created else \
+            f"Already saved as \u201c{self.name}\u201d."
 
 
 class Workspace:
@@ -158,13 +276,32 @@ class Workspace:
         for sub in ("logs", "calibrations", "runs", ".staging"):
             (self.root / sub).mkdir(parents=True, exist_ok=True)
         self.catalog_path = self.root / "catalog.sqlite"
-        with closing(self._connect()) as db, db:
+        with closing(self._connect(autocommit=True)) as db:
             # write-ahead log: the sessions' reads never hold up a writer's commit (the mode persists; busy when
             # another process is switching it at this moment)
             with suppress(sqlite3.OperationalError):
                 db.execute("PRAGMA journal_mode=WAL")
-            db.executescript(_SCHEMA)
+            if self._needs_migration(db):
+                db.execute("BEGIN IMMEDIATE")
+                try:
+                    for statement in _SCHEMA.split(";"):
+                        if statement.strip():
+                            db.execute(statement)
+                    _migrate(db)
+                    db.execute("COMMIT")
+                finally:
+                    if db.in_transaction:
+                        db.execute("ROLLBACK")
         self.recover()
+
+    @staticmethod
+    def _needs_migration(db: sqlite3.Connection) -> bool:
+        """Whether a table or the name column is missing, or a row has no name (read without the write lock)."""
+        for kind in ("calibrations", "runs"):
+            columns = {row[1] for row in db.execute(f"PRAGMA table_info({kind})")}
+            if "name" not in columns or db.execute(f"SELECT 1 FROM {kind} WHERE name IS NULL LIMIT 1").fetchone():
+                return True
+        return not db.execute("SELECT 1 FROM sqlite_master WHERE type = 'table' AND name = 'logs'").fetchone()
 
     def _connect(self, autocommit: bool = False) -> sqlite3.Connection:
         return sqlite3.connect(self.catalog_path, timeout=BUSY_TIMEOUT_S,
@@ -203,23 +340,43 @@ class Workspace:
         staging = self.root / ".staging"
         with self._lock(exclusive=True) as alone:
             for path in list(staging.iterdir()):
+                if path.name.endswith(DELETING_SUFFIX):  # restored or removed below, under the catalog lock
+                    continue
                 if alone or (fcntl is None and _age_s(path) > STALE_STAGING_S):
                     _remove(path)
-        trash = []
+        trash, removed = [], 0
         with closing(self._connect(autocommit=True)) as db:
-            if not self._unlisted(db):  # the usual case, seen without taking the catalog's write lock
+            if not self._unlisted(db) and not self._deletions():  # the usual case, seen without the write lock
                 return 0
             try:
-                db.execute("BEGIN IMMEDIATE")  # no writer is between its move and its commit while we hold this
+                db.execute("BEGIN IMMEDIATE")  # no writer or deleter is between its move and its commit now
+                for path in self._deletions():  # a deleter that died before its commit: its rows are still listed
+                    kind, entry_id = path.name.split("+")[:2]
+                    final = self.root / kind / entry_id
+                    key = _KINDS[kind]
+                    if (db.execute(f"SELECT 1 FROM {kind} WHERE {key} = ?", (entry_id,)).fetchone()
+                            and not final.exists()):
+                        os.replace(path, final)
+                    else:
+                        trash.append(path)
                 for path in self._unlisted(db):
                     trash.append(staging / f"{uuid.uuid4().hex}.orphan")
                     os.replace(path, trash[-1])
+                    removed += 1
                 db.execute("COMMIT")
             except sqlite3.OperationalError:  # catalog busy for BUSY_TIMEOUT_S: leave it to a later open
                 pass
+            finally:
+                if db.in_transaction:
+                    db.execute("ROLLBACK")
         for path in trash:
             _remove(path)
-        return len(trash)
+        return removed
+
+    def _deletions(self) -> list[Path]:
+        """Directories deletions moved to staging (``<kind>+<id>+<random>.deleting``)."""
+        return [path for path in (self.root / ".staging").glob(f"*+*+*{DELETING_SUFFIX}")
+                if path.name.split("+")[0] in _KINDS and path.is_dir()]
 
     def _unlisted(self, db: sqlite3.Connection) -> list[Path]:
         """Entry directories the catalog does not list (rows read before the directories: a writer's entry that
@@ -229,7 +386,8 @@ class Workspace:
                 if path.name not in listed[kind] and path.is_dir()]
 
     def _commit_entry(self, kind: str, entry_id: str, write_files: Callable[[Path], None],
-                      insert: Callable[[sqlite3.Connection], _T]) -> _T | None:
+                      insert: Callable[[sqlite3.Connection], _T],
+                      duplicate: Callable[[sqlite3.Connection], _T | None] | None = None) -> _T | None:
         """Store one entry (see module docstring).
 
         Parameters
@@ -240,6 +398,9 @@ class Workspace:
             ``write_files(directory)`` writes the entry's files into an empty directory.
         insert : callable
             ``insert(db)`` inserts the catalog row in the open transaction (no commit); its result is returned.
+        duplicate : callable, optional
+            ``duplicate(db)``, in the transaction before anything moves: what to return instead of storing (an
+            equal entry stored meanwhile), or None to go on.
 
         Returns
         -------
@@ -261,6 +422,8 @@ class Workspace:
                         key = _KINDS[kind]
                         if db.execute(f"SELECT 1 FROM {kind} WHERE {key} = ?", (entry_id,)).fetchone():
                             return None  # stored meanwhile by another writer (same content)
+                        if duplicate is not None and (found := duplicate(db)) is not None:
+                            return found
                         if final.exists():  # a crashed writer's remains: no writer is in flight now
                             os.replace(final, orphan)
                         os.replace(staging, final)
@@ -328,38 +491,158 @@ class Workspace:
 
     # ---------------------------------------------------------------- calibrations and runs
     def add_calibration(self, log_sha256: str, settings: dict, calibration_json: str) -> str:
-        """Store a calibration file for a log; returns its id."""
-        calib_id = uuid.uuid4().hex[:16]
+        """Store a calibration file for a log; returns its id (that of a stored entry with the same settings, then:
+        :meth:`store_calibration`)."""
+        return self.store_calibration(log_sha256, settings, calibration_json).id
 
+    def store_calibration(self, log_sha256: str, settings: dict, calibration_json: str) -> Stored:
+        """Store a calibration file for a log under a default name, unless one with the same settings is stored."""
         def write_files(directory: Path) -> None:
             (directory / "calib.json").write_text(calibration_json)
 
-        def insert(db: sqlite3.Connection) -> None:
-            db.execute("INSERT INTO calibrations VALUES (?, ?, ?, ?)",
-                       (calib_id, log_sha256, json.dumps(settings, sort_keys=True), _now_utc()))
-
-        self._commit_entry("calibrations", calib_id, write_files, insert)
-        return calib_id
+        return self._store_settings("calibrations", log_sha256, settings, write_files, default_calibration_name)
 
     def add_run(self, log_sha256: str, settings: dict, states: pd.DataFrame, diagnostics: pd.DataFrame,
                 report: dict) -> str:
-        """Store an estimator run (states, diagnostics, report) for a log; returns its id."""
-        run_id = uuid.uuid4().hex[:16]
+        """Store an estimator run (states, diagnostics, report) for a log; returns its id (an equal-settings
+        entry's id: :meth:`store_run`)."""
+        return self.store_run(log_sha256, settings, states, diagnostics, report).id
 
+    def store_run(self, log_sha256: str, settings: dict, states: pd.DataFrame, diagnostics: pd.DataFrame,
+                  report: dict) -> Stored:
+        """Store an estimator run under a default name, unless one with the same settings is stored."""
         def write_files(directory: Path) -> None:
             states.to_parquet(directory / "states.parquet", index=False)
             diagnostics.to_parquet(directory / "diagnostics.parquet", index=False)
             (directory / "report.json").write_text(json.dumps(report, indent=2, default=str))
 
-        def insert(db: sqlite3.Connection) -> None:
-            db.execute("INSERT INTO runs VALUES (?, ?, ?, ?)",
-                       (run_id, log_sha256, json.dumps(settings, sort_keys=True), _now_utc()))
+        return self._store_settings("runs", log_sha256, settings, write_files, default_run_name)
 
-        self._commit_entry("runs", run_id, write_files, insert)
-        return run_id
+    def _store_settings(self, kind: str, log_sha256: str, settings: dict, write_files: Callable[[Path], None],
+                        default_name: Callable[[str, dict, str], str]) -> Stored:
+        """Store a calibration or run (``kind``) unless the log has one with the same canonical settings."""
+        key = _KINDS[kind]
+        identity = canonical_json(settings)
+
+        def duplicate(db: sqlite3.Connection) -> Stored | None:
+            for entry_id, text, name in db.execute(
+                    f"SELECT {key}, settings_json, name FROM {kind} WHERE log_sha256 = ? ORDER BY rowid DESC",
+                    (log_sha256,)):
+                with suppress(ValueError):
+                    if canonical_json(json.loads(text)) == identity:
+                        return Stored(entry_id, name or entry_id, False)
+            return None
+
+        with closing(self._connect()) as db:  # the usual duplicate: found before any file is written
+            found = duplicate(db)
+        if found is not None:
+            return found
+        entry_id = uuid.uuid4().hex[:16]
+
+        def insert(db: sqlite3.Connection) -> Stored:
+            created = _now_utc()
+            name = _distinct_label(db, kind, log_sha256, default_name(_log_name(db, log_sha256), settings, created))
+            db.execute(f"INSERT INTO {kind} ({key}, log_sha256, settings_json, created_utc, name) "
+                       "VALUES (?, ?, ?, ?, ?)", (entry_id, log_sha256, json.dumps(settings, sort_keys=True),
+                                                  created, name))
+            return Stored(entry_id, name, True)
+
+        return self._commit_entry(kind, entry_id, write_files, insert, duplicate)
+
+    def entry_name(self, kind: str, entry_id: str) -> str | None:
+        """The name of a stored calibration or run (a log's display name for ``"logs"``), or None."""
+        column = "display_name" if kind == "logs" else "name"
+        with closing(self._connect()) as db:
+            row = db.execute(f"SELECT {column} FROM {kind} WHERE {_KINDS[kind]} = ?", (entry_id,)).fetchone()
+        return None if row is None else row[0]
+
+    # ---------------------------------------------------------------- rename and delete
+    def rename(self, kind: str, entry_id: str, name: str) -> str:
+        """Rename a log (its display name), calibration or run; returns the name stored.
+
+        Log names are sanitised as uploaded file names (:func:`sanitize_name`, they may become a download's file
+        name), those of calibrations and runs by :func:`sanitize_label`.
+
+        Raises
+        ------
+        NameRejected
+            The name is empty once sanitised, or another entry of the same kind (of the same log, for
+            calibrations and runs) has it.
+        KeyError
+            No such entry.
+        """
+        key = _KINDS[kind]
+        if kind == "logs":
+            column = "display_name"
+            clean = sanitize_name(name)
+            if clean == "unnamed" != sanitize_label(name).lower():  # sanitize_name's stand-in for nothing left
+                raise NameRejected("a name cannot be empty")
+        else:
+            column, clean = "name", sanitize_label(name)
+            if not clean:
+                raise NameRejected("a name cannot be empty")
+        with closing(self._connect(autocommit=True)) as db:
+            db.execute("BEGIN IMMEDIATE")
+            try:
+                row = db.execute(f"SELECT {'sha256' if kind == 'logs' else 'log_sha256'} FROM {kind} "
+                                 f"WHERE {key} = ?", (entry_id,)).fetchone()
+                if row is None:
+                    raise KeyError(f"no {kind[:-1]} {entry_id}")
+                scope = "" if kind == "logs" else " AND log_sha256 = ?"
+                params = (clean, entry_id) if kind == "logs" else (clean, entry_id, row[0])
+                if db.execute(f"SELECT 1 FROM {kind} WHERE {column} = ? AND {key} != ?{scope}", params).fetchone():
+                    raise NameRejected(f"the name \u201c{clean}\u201d is taken")
+                db.execute(f"UPDATE {kind} SET {column} = ? WHERE {key} = ?", (clean, entry_id))
+                db.execute("COMMIT")
+            finally:
+                if db.in_transaction:
+                    db.execute("ROLLBACK")
+        return clean
+
+    def delete(self, kind: str, entry_id: str) -> int:
+        """Delete a log (with its calibrations and runs), a calibration or a run: rows and files together.
+
+        Returns
+        -------
+        int
+            Number of entries deleted (0 when ``entry_id`` is not listed).
+        """
+        key = _KINDS[kind]
+        staging = self.root / ".staging"
+        moved: list[tuple[Path, Path]] = []
+        with self._lock(exclusive=False), closing(self._connect(autocommit=True)) as db:
+            db.execute("BEGIN IMMEDIATE")
+            try:
+                victims = [(kind, entry_id)] if db.execute(
+                    f"SELECT 1 FROM {kind} WHERE {key} = ?", (entry_id,)).fetchone() else []
+                if victims and kind == "logs":
+                    victims += [(sub, row[0]) for sub in ("calibrations", "runs") for row in db.execute(
+                        f"SELECT {_KINDS[sub]} FROM {sub} WHERE log_sha256 = ?", (entry_id,))]
+                for sub, sub_id in victims:
+                    db.execute(f"DELETE FROM {sub} WHERE {_KINDS[sub]} = ?", (sub_id,))
+                    final = self.root / sub / sub_id
+                    if final.exists():
+                        trash = staging / f"{sub}+{sub_id}+{uuid.uuid4().hex}{DELETING_SUFFIX}"
+                        os.replace(final, trash)
+                        moved.append((final, trash))
+                if moved:
+                    _fsync_directory(staging)
+                db.execute("COMMIT")
+            except BaseException:
+                if db.in_transaction:  # still listed: put the files back before anyone can look
+                    for final, trash in reversed(moved):
+                        os.replace(trash, final)
+                raise
+            finally:
+                if db.in_transaction:
+                    db.execute("ROLLBACK")
+        for _, trash in moved:
+            _remove(trash)
+        return len(victims)
 
     def list_runs(self, log_sha256: str | None = None) -> pd.DataFrame:
-        """Stored runs (run_id, log_sha256, settings_json, created_utc), newest first, optionally for one log."""
+        """Stored runs (run_id, log_sha256, settings_json, created_utc, name), newest first, optionally for one
+        log."""
         query = "SELECT * FROM runs" + (" WHERE log_sha256 = ?" if log_sha256 else "") + " ORDER BY rowid DESC"
         import pandas as pd
 
@@ -367,7 +650,7 @@ class Workspace:
             return pd.read_sql_query(query, db, params=(log_sha256,) if log_sha256 else None)
 
     def list_calibrations(self, log_sha256: str | None = None) -> pd.DataFrame:
-        """Stored calibrations (calib_id, log_sha256, settings_json, created_utc), newest first."""
+        """Stored calibrations (calib_id, log_sha256, settings_json, created_utc, name), newest first."""
         query = ("SELECT * FROM calibrations" + (" WHERE log_sha256 = ?" if log_sha256 else "")
                  + " ORDER BY rowid DESC")
         import pandas as pd
@@ -409,6 +692,42 @@ def _distinct_name(db: sqlite3.Connection, name: str) -> str:
         number += 1
         candidate = _fit(name, f" ({number})", MAX_NAME_LENGTH)
     return candidate
+
+
+def _log_name(db: sqlite3.Connection, sha256: str) -> str:
+    row = db.execute("SELECT display_name FROM logs WHERE sha256 = ?", (sha256,)).fetchone()
+    return row[0] if row else sha256[:12]
+
+
+def _distinct_label(db: sqlite3.Connection, kind: str, log_sha256: str, name: str,
+                    exclude: str | None = None) -> str:
+    """``name``, or ``name (2)``, ...: the first no other calibration or run (``kind``) of the log has."""
+    taken = {row[0] for row in db.execute(f"SELECT name FROM {kind} WHERE log_sha256 = ? AND {_KINDS[kind]} != ?",
+                                          (log_sha256, exclude or ""))}
+    candidate, number = name, 1
+    while candidate in taken:
+        number += 1
+        candidate = f"{name} ({number})"
+    return candidate
+
+
+def _migrate(db: sqlite3.Connection) -> None:
+    """In the open write transaction: add the ``name`` column where missing and name the unnamed rows."""
+    for kind, default_name in (("calibrations", default_calibration_name), ("runs", default_run_name)):
+        key = _KINDS[kind]
+        if "name" not in {row[1] for row in db.execute(f"PRAGMA table_info({kind})")}:
+            db.execute(f"ALTER TABLE {kind} ADD COLUMN name TEXT")
+        rows = db.execute(f"SELECT {key}, log_sha256, settings_json, created_utc FROM {kind} WHERE name IS NULL "
+                          "ORDER BY rowid").fetchall()
+        for entry_id, log_sha256, text, created in rows:
+            try:
+                settings = json.loads(text)
+            except ValueError:
+                settings = {}
+            settings = settings if isinstance(settings, dict) else {}
+            name = _distinct_label(db, kind, log_sha256, default_name(_log_name(db, log_sha256), settings, created),
+                                   exclude=entry_id)
+            db.execute(f"UPDATE {kind} SET name = ? WHERE {key} = ?", (name, entry_id))
 
 
 def _age_s(path: Path) -> float:

@@ -181,5 +181,4 @@ if right.button("Save in the workspace", key="calib_save"):
     fir_json = [[name, None if np.isnan(cutoff) else cutoff, taps] for name, cutoff, taps in fir_rows]
     settings = {"window_s": window, "fir": fir_json, "noise": noise, "tau": current.tau.tau,
                 "tau_method": current.tau.method}
-    calib_id = session.workspace().add_calibration(sha256, settings, calib_json)
-    st.success(f"Saved calibration {calib_id}.")
+    session.save_calibration(sha256, settings, calib_json)

@@ -36,10 +36,12 @@ for finding in findings:
         st.warning(f"**Flagged input**: {finding['message']}")
 
 # ------------------------------------------------------------------ run form
-saved = list(workspace.list_calibrations(sha256)["calib_id"])
+saved_calibrations = workspace.list_calibrations(sha256)
+saved = list(saved_calibrations["calib_id"])
 noise_labels = {runs.DEFAULT_NOISE: "default R (datasheet noise)",
                 runs.AUTO_CALIBRATION: "calibrated R (automatic calibration of this log)",
-                **{calib_id: f"saved calibration {calib_id}" for calib_id in saved}}
+                **{calib_id: f"saved: {name}" for calib_id, name in zip(saved_calibrations["calib_id"],
+                                                                    saved_calibrations["name"], strict=True)}}
 headings = HEADING_SOURCES if log.has("sun") else ("mag",)
 with st.form("run_form"):
     chosen = st.multiselect("Estimators", list(ESTIMATORS), default=list(DEFAULT_ESTIMATORS), key="est_names")

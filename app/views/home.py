@@ -63,11 +63,15 @@ if submitted:
 st.subheader("Workspace")
 st.caption("Every upload is stored under its content hash; calibrations and estimator runs are stored beside it "
            "and survive a restart. Select a row to open that log.")
+st.page_link("views/workspace.py", label="Rename or delete logs, calibrations and runs",
+             icon=":material/inventory_2:")
 logs = tables.logs_table(workspace.list_logs(), workspace.list_runs())
 st.dataframe(logs, hide_index=True, on_select=session.open_selected_row, selection_mode="single-row",
              key=session.LOGS_TABLE_KEY, column_config={"sha256": None})
-runs = tables.runs_table(workspace.list_runs(), workspace.list_logs())
+stored_runs = workspace.list_runs()
+runs = tables.runs_table(stored_runs, workspace.list_logs())
 if len(runs):
+    runs.insert(0, "name", stored_runs["name"].to_numpy(dtype=object))
     st.write("Estimator runs")
     st.dataframe(runs, hide_index=True)
 else:
