@@ -17,6 +17,7 @@ from app.workspace import Workspace
 from calib.calibration import Calibration
 from estimators.api import DEFAULT_ESTIMATORS, run_estimators
 from estimators.config import EstimatorConfig, config_from_calibration
+from estimators.warmup import COMPILE_MESSAGE, cache_state, prepare_compile
 from ingest import FlightLog
 
 #: ``noise`` setting of a run with the filters' built-in noise (datasheet values).
@@ -81,7 +82,9 @@ def replay(log: FlightLog, settings: RunSettings, calibration: Calibration | Non
         Noise for R (:func:`estimators.config.config_from_calibration`, the estimator's tuned figures when the
         calibration has them); the default noise without one.
     progress : callable, optional
-        ``progress(fraction, text)`` before each estimator and at the end.
+        ``progress(fraction, text)`` before each estimator and at the end; the text of an estimator whose numba
+        kernels are not in the cache yet (:func:`estimators.warmup.cache_state`) starts with
+        :data:`~estimators.warmup.COMPILE_MESSAGE` (capitalised).
 
     Raises
     ------
@@ -96,9 +99,15 @@ def replay(log: FlightLog, settings: RunSettings, calibration: Calibration | Non
         Estimator name -> its report as a JSON-ready dict.
     """
     states, diagnostics, report = [], [], {}
+    cold: set[str] = set()
+    if prepare_compile(settings.estimators) is not None:  # (after dropping a stale cache numba would load)
+        cold = {name for name in settings.estimators if not cache_state((name,)).warm}
     for k, name in enumerate(settings.estimators):
         if progress is not None:
-            progress(k / len(settings.estimators), f"Running {name} ({k + 1} of {len(settings.estimators)}) ...")
+            text = f"Running {name} ({k + 1} of {len(settings.estimators)}) ..."
+            if name in cold:
+                text = f"{COMPILE_MESSAGE.capitalize()}: {text[0].lower()}{text[1:]}"
+            progress(k / len(settings.estimators), text)
         config = (EstimatorConfig() if calibration is None
                   else config_from_calibration(calibration, estimator=name))
         result = run_estimators(log, estimators=(name,), config=config, heading=settings.heading,

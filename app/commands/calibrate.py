@@ -9,11 +9,13 @@ with the calibrated noise, and keeps the tau that maximises the likelihood of it
 (or brings their mean NIS to 1). With GPS, the error-state filter is replayed once with the calibrated noise and its
 final gyro and accelerometer bias states become the in-flight bias (the three-stage estimator, which has no bias
 states, gets them removed from its inputs). ``--tune`` maximises each estimator's innovation log-likelihood over its
-noise figures (docs/calibration.md, 'Noise identification')."""
+noise figures (docs/calibration.md, 'Noise identification'). Before the first replay of a filter whose numba
+cache is cold, "compiling the estimators (first run only) ..." goes to stderr."""
 
 from __future__ import annotations
 
 import argparse
+import sys
 
 import numpy as np
 
@@ -36,6 +38,7 @@ from calib.tau import DEFAULT_TAU, TAU_METHODS, TauSelection, choose_tau, user_t
 from estimators.api import DEFAULT_ESTIMATORS, parse_estimator_names
 from estimators.calibration_replay import tau_replay, with_filter_figures
 from estimators.tuning import DEFAULT_BUDGET, tune_calibration
+from estimators.warmup import prepare_compile
 from ingest.errors import InputError
 from ingest.ulog_reader import load_flight_log
 
@@ -82,6 +85,10 @@ def run(args: argparse.Namespace) -> int:
     segment = None if args.start_s is None else user_segment(log, args.start_s, args.end_s)
     cal = calibrate(log, segment=segment, fir=_imu_filter(args), noise=args.noise, tau=tau or DEFAULT_TAU,
                     gravity=local_gravity(log))
+    replayed = (["three_stage"] if tau is None else []) + (["full_state_indirect"] if log.has("gps") else [])
+    message = prepare_compile(replayed + (list(parse_estimator_names(args.estimators)) if args.tune else []))
+    if message is not None:  # the filters' numba cache is cold (or was stale and has been dropped)
+        print(f"{message} ...", file=sys.stderr, flush=True)
     if tau is None:
         cal = with_tau(cal, choose_tau(tau_replay(log, cal), method=args.tau_method))
     cal = with_filter_figures(log, cal)

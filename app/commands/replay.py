@@ -4,12 +4,14 @@ re-run the estimators on a log and write their states (one row per estimator per
 
 A log whose inputs cannot give a trustworthy estimate (IMU too slow or with long gaps, clipping accelerometer) is
 refused with the reason (exit status 2) unless ``--force`` is given; then, and for every flagged finding, the
-summary and each report carry the warning."""
+summary and each report carry the warning. When the selected filters are not in numba's cache yet, "compiling the
+estimators (first run only) ..." goes to stderr before the replay (:func:`estimators.warmup.prepare_compile`)."""
 
 from __future__ import annotations
 
 import argparse
 import math
+import sys
 from pathlib import Path
 
 import pandas as pd
@@ -27,6 +29,7 @@ from estimators.api import (
 from estimators.config import EstimatorConfig, config_from_calibration
 from estimators.consistency import turbulence_intensity_m_s
 from estimators.inputs.records import HEADING_SOURCES
+from estimators.warmup import prepare_compile
 from ingest.errors import InputError
 from ingest.files import atomic_write
 from ingest.sun_log import load_sun_device, with_sun
@@ -74,6 +77,7 @@ def run(args: argparse.Namespace) -> int:
     if args.sun is not None:
         device = load_sun_device(args.device) if args.device is not None else None
         log = with_sun(log, args.sun, device=device)
+    announce_compile(names)
     result = run_estimators(log, estimators=names, config=config, configs=configs, heading=args.heading,
                             rate_hz=args.rate_hz, allow_untrusted=args.force)
     write_table(result.states, outputs[0])
@@ -81,6 +85,14 @@ def run(args: argparse.Namespace) -> int:
         write_table(result.diagnostics, outputs[1])
     print(format_summary(result, outputs))
     return 0
+
+
+def announce_compile(estimators) -> None:
+    """Print "compiling the estimators (first run only) ..." to stderr when the filters ``estimators`` would be
+    compiled (their numba cache is cold or stale; a stale one is dropped first)."""
+    message = prepare_compile(estimators)
+    if message is not None:
+        print(f"{message} ...", file=sys.stderr, flush=True)
 
 
 def _checked_path(path: str, option: str) -> Path:

@@ -1,0 +1,269 @@
+"""Compile the three filters once (warm numba's on-disk cache) and tell whether that cache is warm.
+
+The filters' loops are numba functions compiled with ``cache=True``: the first run in a fresh clone (or after an
+edit of a kernel source) compiles them, which takes minutes; later processes load the machine code from the cache
+(``__pycache__`` beside each source file, or ``NUMBA_CACHE_DIR``) in seconds.
+
+* :func:`warm_up` runs each filter on a tiny synthetic flight (straight level flight, a few seconds), which compiles
+  and caches every kernel a replay of a real log uses (same argument types), and the ULog reader's numba function,
+  and returns the time it took.
+* :func:`cache_state` says, without compiling anything, whether a replay would compile (:attr:`CacheState.warm`).
+* :func:`prepare_compile` is what a command calls before running the estimators: if the cache is cold it drops a
+  stale cache (see below) so the compile really happens, and returns the message to show.
+
+What the check detects, per entry kernel (the ``run_kernel`` of each filter):
+
+* no cache index, an index of another numba version, Python version or CPU (numba's own key), an index whose
+  recorded source stamp (modification time and size of the kernel's own file) differs, or whose entries were made
+  from other bytecode of the kernel function, or whose data file is missing -- numba itself would compile;
+* a changed *callee in another file*: numba does not notice this (it checks only the stamp of the file defining the
+  cached function, and would load the stale machine code). The check therefore also compares the index file's
+  modification time with that of every estimators source that imports numba and of the estimators modules those
+  import (constants are frozen into the machine code): any of them newer than the index makes the cache stale.
+  :func:`prepare_compile` and :func:`warm_up` then empty the index of every cached numba function of the package
+  (``Cache.flush``), so numba recompiles instead of loading stale code.
+
+What it does not detect: a change in a module outside ``estimators`` (numpy, numba internals are covered by
+numba's version key only), a source file whose modification time was set back (e.g. restored from an archive with
+old times), and a kernel called with argument types the warm-up does not produce (then numba compiles that
+signature on first use, silently). Not covered at all: the sun-vector solver's kernel (``--heading sun``/``mag+sun``
+compiles it on its first use, without the message) and the ULog reader's numba function (warmed, not checked).
+It may report stale for an edit that did not touch any numba code (any newer
+source file counts); the price is one needless compile.
+"""
+
+from __future__ import annotations
+
+import importlib
+import math
+import os
+import re
+import sys
+import time
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+#: What a command shows (progress text, CLI line) before a compile.
+COMPILE_MESSAGE = "compiling the estimators (first run only)"
+#: Estimator name -> module whose ``run_kernel`` its replay calls from Python (the filter's entry point).
+KERNEL_MODULES = {"three_stage": "estimators.three_stage.kernel", "full_state_direct": "estimators.direct.kernel",
+                  "full_state_indirect": "estimators.indirect.kernel"}
+#: The package directory.
+PACKAGE_DIR = Path(__file__).resolve().parent
+
+
+@dataclass(frozen=True)
+class CacheState:
+    """Result of :func:`cache_state`.
+
+    Attributes
+    ----------
+    warm : bool
+        A replay of all three filters loads every entry kernel from the cache (no compile).
+    cold : tuple of str
+        ``module: reason`` of each entry kernel that would be compiled.
+    stale : bool
+        At least one kernel has a cache entry that numba would load although a source it depends on is newer
+        (:func:`prepare_compile` drops such caches).
+    """
+
+    warm: bool
+    cold: tuple[str, ...] = ()
+    stale: bool = False
+
+
+#: Module named by an import statement (``import a.b`` / ``from a.b import c``, indented ones too).
+_IMPORT = re.compile(r"^[ \t]*(?:from|import)[ \t]+([A-Za-z_][\w.]*)", re.MULTILINE)
+
+
+def _numba_sources() -> list[Path]:
+    """Estimators sources that import numba, plus the estimators modules they import (their constants are compiled
+    into the kernels)."""
+    found: set[Path] = set()
+    for path in PACKAGE_DIR.rglob("*.py"):
+        text = path.read_text(encoding="utf-8")
+        if "numba" not in text or path.resolve() == Path(__file__).resolve():  # this module compiles nothing
+            continue
+        names = _IMPORT.findall(text)
+        if not any(name == "numba" or name.startswith("numba.") for name in names):
+            continue
+        found.add(path)
+        for name in names:
+            if name.startswith("estimators."):
+                target = PACKAGE_DIR.parent.joinpath(*name.split("."))
+                for candidate in (target.with_suffix(".py"), target / "__init__.py"):
+                    if candidate.is_file():
+                        found.add(candidate)
+    return sorted(found)
+
+
+def _entry_kernels(estimators: Iterable[str] | None = None) -> dict[str, object]:
+    """Estimator name -> its ``run_kernel`` dispatcher (importing compiles nothing); all filters by default."""
+    names = KERNEL_MODULES if estimators is None else [name for name in estimators if name in KERNEL_MODULES]
+    return {name: importlib.import_module(KERNEL_MODULES[name]).run_kernel for name in names}
+
+
+def _kernel_state(dispatcher, newest_source_mtime: float) -> tuple[str | None, bool]:
+    """(why the kernel would compile or None, whether a loadable entry is stale)."""
+    cache = getattr(dispatcher, "_cache", None)
+    cache_file = getattr(cache, "_cache_file", None)
+    if cache_file is None:  # numba internals changed or caching disabled: cannot tell, assume a compile
+        return "numba cache not inspectable", False
+    index = Path(cache_file._index_path)
+    overloads = cache_file._load_index()  # {} when missing, other numba version or other source stamp
+    if not overloads:
+        return f"no valid cache index ({index.name})", False
+    wanted = cache._index_key(None, dispatcher.targetctx.codegen())[1:]  # (CPU/numba magic, bytecode hashes)
+    usable = [name for key, name in overloads.items()
+              if tuple(key[1:]) == wanted and (index.parent / name).is_file()]
+    if not usable:
+        return "no cache entry for this machine and kernel code", False
+    if index.stat().st_mtime < newest_source_mtime:
+        return "a source the kernel depends on is newer than its cache", True
+    return None, False
+
+
+def cache_state(estimators: Iterable[str] | None = None) -> CacheState:
+    """Whether replaying the filters (default all three; else the named ones, unknown names ignored) would compile.
+
+    Compiles nothing (about 0.1 s once the estimators are imported). See the module docstring for what this detects
+    and what it does not.
+    """
+    newest = max(path.stat().st_mtime for path in _numba_sources())
+    cold, stale = [], False
+    for name, dispatcher in _entry_kernels(estimators).items():
+        reason, is_stale = _kernel_state(dispatcher, newest)
+        if reason is not None:
+            cold.append(f"{name}: {reason}")
+            stale = stale or is_stale
+    return CacheState(warm=not cold, cold=tuple(cold), stale=stale)
+
+
+def is_cache_warm(estimators: Iterable[str] | None = None) -> bool:
+    """``cache_state(estimators).warm``."""
+    return cache_state(estimators).warm
+
+
+def drop_package_caches() -> int:
+    """Empty the cache index of every cached numba function in the estimators package (numba then recompiles
+    them); returns how many indexes were emptied."""
+    from numba.core.registry import CPUDispatcher
+
+    _entry_kernels()
+    importlib.import_module("estimators.sun.solver_kernel")
+    count = 0
+    for module_name, module in list(sys.modules.items()):
+        if not module_name.startswith("estimators.") or module is None:
+            continue
+        for value in list(vars(module).values()):
+            if not isinstance(value, CPUDispatcher) or value.__module__ != module_name:
+                continue
+            cache_file = getattr(getattr(value, "_cache", None), "_cache_file", None)
+            if cache_file is not None and os.path.exists(cache_file._index_path):
+                value._cache.flush()
+                count += 1
+    return count
+
+
+def prepare_compile(estimators: Iterable[str] | None = None) -> str | None:
+    """Call before running the estimators (default all three, else the named ones): None when their cache is warm;
+    otherwise (after dropping a stale cache, which numba would load silently) :data:`COMPILE_MESSAGE`."""
+    state = cache_state(estimators)
+    if state.warm:
+        return None
+    if state.stale:
+        drop_package_caches()
+    return COMPILE_MESSAGE
+
+
+def synthetic_flight(duration_s: float = 6.0, imu_hz: float = 200.0):
+    """A tiny fixed-wing flight for :func:`warm_up`: straight and level at 15 m/s heading 30 deg, noise-free, with
+    IMU, magnetometer, barometer, GPS and airspeed (every measurement kind a replay without sun uses)."""
+    from estimators import environment
+    from ingest.flightlog import FlightLog, LogMetadata
+
+    lat0, lon0, alt0, yaw = 35.0, 108.9, 630.0, math.radians(30.0)
+    g = float(environment.local_gravity_m_s2(lat0, alt0))
+    t = 1000.0 + np.arange(0.0, duration_s, 1.0 / imu_hz)
+    n = len(t)
+
+    def frame(times, columns: dict) -> pd.DataFrame:
+        return pd.DataFrame(columns, index=pd.Index(times, name="time_s"))
+
+    imu = {"gyro_x_rad_s": 0.0, "gyro_y_rad_s": 0.0, "gyro_z_rad_s": 0.0, "accel_x_m_s2": 0.0,
+           "accel_y_m_s2": 0.0, "accel_z_m_s2": -g}
+    streams = {"imu": frame(t, {k: np.full(n, v) for k, v in imu.items()})}
+    c, s = math.cos(yaw), math.sin(yaw)
+    r_bn = np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])  # NED -> body, level flight
+    field_b = r_bn @ environment.earth_field_ned_gauss(lat0, lon0, alt0, 2020.0)
+    t_mag = t[::4]
+    streams["mag"] = frame(t_mag, {f"mag_{a}_gauss": np.full(len(t_mag), field_b[i]) for i, a in enumerate("xyz")})
+    t_baro = t[1::4]
+    streams["baro"] = frame(t_baro, {"alt_m": np.full(len(t_baro), alt0),
+                                     "pressure_pa": np.full(len(t_baro), environment.isa_pressure_pa(alt0)),
+                                     "temp_c": np.full(len(t_baro), 20.0)})
+    t_air = t[2::4]
+    streams["airspeed"] = frame(t_air, {"ias_m_s": np.full(len(t_air), 15.0), "tas_m_s": np.full(len(t_air), 15.0)})
+    t_gps = t[3::20]
+    north, east = 15.0 * c * (t_gps - t[0]), 15.0 * s * (t_gps - t[0])
+    lat, lon, alt = environment.ned_to_geodetic(north, east, np.zeros(len(t_gps)), lat0, lon0, alt0)
+    m = len(t_gps)
+    streams["gps"] = frame(t_gps, {"lat_deg": lat, "lon_deg": lon, "alt_m": alt, "vn_m_s": np.full(m, 15.0 * c),
+                                   "ve_m_s": np.full(m, 15.0 * s), "vd_m_s": np.zeros(m), "eph_m": np.full(m, 0.7),
+                                   "epv_m": np.full(m, 0.5), "fix_type": np.full(m, 3),
+                                   "time_utc_s": 1.6e9 + t_gps, "speed_accuracy_m_s": np.full(m, 0.1)})
+    meta = LogMetadata(source="warmup-synthetic.ulg", vehicle_type=1, start_time_s=float(t[0]),
+                       end_time_s=float(t[-1]), duration_s=float(t[-1] - t[0]), utc_offset_s=1.6e9)
+    return FlightLog(streams=streams, meta=meta)
+
+
+def warm_up(report: Callable[[str], None] | None = None) -> float:
+    """Compile (or load) every filter kernel by replaying :func:`synthetic_flight` with each filter, after dropping
+    a stale cache; returns the wall time [s]. ``report`` receives one line per filter."""
+    from estimators.api import DEFAULT_ESTIMATORS, run_estimators
+
+    start = time.perf_counter()
+    if cache_state().stale:
+        drop_package_caches()
+    from ingest.ulog_reader import _message_walk_end  # the ULog reader's one numba function
+
+    _message_walk_end(np.frombuffer(bytes(16), dtype=np.uint8), 16)  # the types the reader passes
+    log = synthetic_flight()
+    for name in DEFAULT_ESTIMATORS:
+        t0 = time.perf_counter()
+        run_estimators(log, estimators=(name,), allow_untrusted=True)
+        if report is not None:
+            report(f"  {name}: {time.perf_counter() - t0:.1f} s")
+    return time.perf_counter() - start
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m estimators.warmup [--check]``: warm the cache (printing what it does and how long it took), or
+    with ``--check`` only print ``warm``/``cold`` (exit status 0 / 1)."""
+    argv = sys.argv[1:] if argv is None else argv
+    state = cache_state()
+    if "--check" in argv:
+        print("warm" if state.warm else "cold")
+        for line in state.cold:
+            print(f"  {line}")
+        return 0 if state.warm else 1
+    if state.warm:
+        print("estimators already compiled (numba cache warm)", flush=True)
+        return 0
+    print(f"compiling the estimators (first run only, about {FIRST_COMPILE}) ...", flush=True)
+    elapsed = warm_up(report=lambda line: print(line, flush=True))
+    print(f"compiled the estimators in {elapsed:.0f} s", flush=True)
+    return 0
+
+
+#: Measured cold compile of the three filters on two shared cores (wall time: 4 min 16 s at load 5, 5.5 min at
+#: load 9; 2.5 min of CPU time).
+FIRST_COMPILE = "2-6 min"
+
+
+if __name__ == "__main__":
+    sys.exit(main())

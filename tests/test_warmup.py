@@ -1,0 +1,145 @@
+"""First start: the numba warm-up and its cache check (estimators/warmup.py), the CLI's compile message, and the
+install stamp of scripts/bootstrap.sh.
+
+The two cache tests compile in a fresh ``NUMBA_CACHE_DIR`` (a few minutes on two cores); the stamp test runs the
+script against a fake venv whose ``python`` only records its arguments.
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import textwrap
+
+import pytest
+
+from tests.conftest import REPO_DIR
+
+SAMPLE = REPO_DIR / "sample_logs" / "paper.ulg"
+
+
+def _env(cache_dir) -> dict:
+    return {**os.environ, "NUMBA_CACHE_DIR": str(cache_dir), "PYTHONPATH": str(REPO_DIR)}
+
+
+def _python(args, cache_dir, timeout=1800) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, *args], cwd=REPO_DIR, env=_env(cache_dir), capture_output=True,
+                          text=True, timeout=timeout, check=False)
+
+
+def test_cache_check_is_cold_on_an_empty_cache_and_warm_after_the_warm_up(tmp_path):
+    cache = tmp_path / "numba"
+    cold = _python(["-m", "estimators.warmup", "--check"], cache)
+    assert cold.returncode == 1 and cold.stdout.startswith("cold"), cold.stdout + cold.stderr
+    assert "no valid cache index" in cold.stdout
+
+    warmed = _python(["-m", "estimators.warmup"], cache)
+    assert warmed.returncode == 0, warmed.stderr
+    assert "compiling the estimators (first run only, about" in warmed.stdout
+    assert "compiled the estimators in" in warmed.stdout
+
+    warm = _python(["-m", "estimators.warmup", "--check"], cache)
+    assert warm.returncode == 0 and warm.stdout.strip() == "warm", warm.stdout + warm.stderr
+    again = _python(["-m", "estimators.warmup"], cache)
+    assert again.returncode == 0 and "already compiled" in again.stdout and "compiling" not in again.stdout
+
+    # A source newer than the cache index (a callee edited in another file, which numba itself ignores) makes the
+    # cache stale, and prepare_compile then empties the package's indexes so numba recompiles.
+    probe = textwrap.dedent("""
+        import time
+        from estimators import warmup
+        kernels = warmup._entry_kernels()
+        reason, stale = warmup._kernel_state(kernels["full_state_direct"], time.time() + 3600.0)
+        print(stale, reason)
+        assert warmup.drop_package_caches() > 10
+        state = warmup.cache_state()
+        print(state.warm, state.stale, len(state.cold))
+    """)
+    result = _python(["-c", probe], cache)
+    assert result.returncode == 0, result.stderr
+    first, second = result.stdout.strip().splitlines()
+    assert first == "True a source the kernel depends on is newer than its cache"
+    assert second == "False False 3"
+
+
+def test_replay_says_compiling_only_when_the_cache_is_cold(tmp_path):
+    cache = tmp_path / "numba"
+    command = ["-m", "app.cli", "replay", str(SAMPLE), "--estimators", "three_stage", "-o"]
+    first = _python([*command, str(tmp_path / "first.parquet")], cache)
+    assert first.returncode == 0, first.stderr
+    assert "compiling the estimators (first run only) ..." in first.stderr
+    assert "compiling the estimators" not in first.stdout  # the summary on stdout stays as it was
+    second = _python([*command, str(tmp_path / "second.parquet")], cache)
+    assert second.returncode == 0, second.stderr
+    assert "compiling the estimators" not in second.stderr + second.stdout
+
+
+FAKE_PYTHON = """#!/usr/bin/env bash
+echo "$*" >> "$(dirname "$0")/../calls.log"
+"""
+
+
+def _bootstrap(venv, *args, warm_up=False) -> list[str]:
+    """Run scripts/bootstrap.sh against the fake venv; the calls its python received in this run."""
+    log = venv / "calls.log"
+    log.unlink(missing_ok=True)
+    env = {**os.environ, "SOLARNAV_VENV": str(venv), "SOLARNAV_SKIP_WARMUP": "0" if warm_up else "1"}
+    subprocess.run(["bash", str(REPO_DIR / "scripts" / "bootstrap.sh"), *args], env=env, check=True, timeout=60)
+    return log.read_text().splitlines() if log.exists() else []
+
+
+def _installs(calls: list[str]) -> list[str]:
+    return [call.split()[-1] for call in calls if call.startswith("-m pip install --quiet -e")]
+
+
+def test_bootstrap_keeps_one_install_stamp_with_dev_as_a_superset(tmp_path):
+    venv = tmp_path / "venv"
+    (venv / "bin").mkdir(parents=True)
+    python = venv / "bin" / "python"
+    python.write_text(FAKE_PYTHON)
+    python.chmod(0o755)
+    stamp = venv / ".solarnav-installed"
+
+    assert _installs(_bootstrap(venv)) == ["."]  # fresh venv: plain install
+    assert stamp.read_text().strip() == ""
+    assert _bootstrap(venv) == []  # done already
+    assert _installs(_bootstrap(venv, "dev")) == [".[dev]"]  # plain done, dev needed: install dev
+    assert stamp.read_text().strip() == "dev"
+    assert _bootstrap(venv) == []  # dev done: the plain install is satisfied (no reinstall)
+    assert _bootstrap(venv, "dev") == []
+    os.utime(stamp, (0, 0))  # pyproject.toml changed since: reinstall, keeping the dev extras
+    assert _installs(_bootstrap(venv)) == [".[dev]"]
+    assert sorted(p.name for p in venv.glob(".solarnav-installed*")) == [".solarnav-installed"]
+
+    # the old script's separate dev stamp is taken over (and removed)
+    stamp.unlink()
+    (venv / ".solarnav-installed[dev]").touch()
+    assert _bootstrap(venv) == []
+    assert stamp.read_text().strip() == "dev"
+    assert not (venv / ".solarnav-installed[dev]").exists()
+
+    # the warm-up runs after the install check (the real one is quick on a warm cache)
+    assert _bootstrap(venv, warm_up=True) == ["-m estimators.warmup"]
+
+
+class _Stop(Exception):
+    pass
+
+
+def test_dashboard_progress_says_compiling_only_for_a_cold_filter(monkeypatch):
+    from app import runs
+    from estimators.warmup import CacheState
+
+    def stop(*args, **kwargs):
+        raise _Stop
+
+    monkeypatch.setattr(runs, "run_estimators", stop)
+    texts = []
+    for warm in (False, True):
+        monkeypatch.setattr(runs, "prepare_compile", lambda names, warm=warm: None if warm else "compiling")
+        monkeypatch.setattr(runs, "cache_state", lambda names, warm=warm: CacheState(warm=warm))
+        with pytest.raises(_Stop):
+            runs.replay(None, runs.RunSettings(), progress=lambda fraction, text: texts.append(text))
+    assert texts == ["Compiling the estimators (first run only): running three_stage (1 of 3) ...",
+                     "Running three_stage (1 of 3) ..."]
