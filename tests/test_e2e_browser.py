@@ -7,6 +7,7 @@ to ``test-artifacts/`` (git-ignored) for a human to look at.
 from __future__ import annotations
 
 import os
+import re
 import signal
 import socket
 import subprocess
@@ -34,6 +35,37 @@ RUN_MS = 900_000
 SETTLED_JS = ("() => !document.querySelector('[data-testid=\"stStatusWidget\"]')"
               " && !document.querySelector('[data-testid=\"stSpinner\"]')"
               " && !document.querySelector('[data-testid=\"stSkeleton\"]')")
+#: Every plotly chart of the page: its title, trace names and types, first x axis range and smallest finite x.
+PLOTS_JS = """() => {
+    const DTYPES = {f8: Float64Array, f4: Float32Array, i4: Int32Array, u4: Uint32Array, i2: Int16Array,
+                    u2: Uint16Array, i1: Int8Array, u1: Uint8Array};
+    const values = x => {  // a plain or typed array, or plotly's base64 {dtype, bdata}
+        if (!x) return [];
+        if (x.bdata !== undefined && DTYPES[x.dtype]) {
+            const bytes = Uint8Array.from(atob(x.bdata), c => c.charCodeAt(0));
+            return Array.from(new DTYPES[x.dtype](bytes.buffer));
+        }
+        return Array.from(x);
+    };
+    return [...document.querySelectorAll('.js-plotly-plot')].map(gd => {
+        const data = gd.data || [], layout = gd.layout || {};
+        let xmin = Infinity;
+        for (const trace of data) {
+            for (const x of values(trace.x)) {
+                const v = Number(x);
+                if (x !== null && Number.isFinite(v) && v < xmin) xmin = v;
+            }
+        }
+        const title = layout.title ? (typeof layout.title === 'string' ? layout.title : layout.title.text || '') : '';
+        const range = layout.xaxis && layout.xaxis.range ? Array.from(layout.xaxis.range).map(Number) : null;
+        return {title: title.replace(/<[^>]*>/g, ''), names: data.map(t => t.name || ''),
+                types: data.map(t => t.type || 'scatter'), xrange: range, xmin: Number.isFinite(xmin) ? xmin : null,
+                x0: data.length ? String(JSON.stringify(data[0].x)).slice(0, 80) : null};
+    });
+}"""
+#: An RMS difference cell: "4.00 (+2.00, +100.0 %)" (and a change mark).
+RMS_DELTA_CELL = re.compile(r"\d+\.\d{2} \([+-]\d+\.\d{2}, (?:[+-]\d+\.\d|–) %\)")
+ESTIMATORS = ("three_stage", "full_state_direct", "full_state_indirect")
 
 
 def _free_port() -> int:
@@ -108,6 +140,29 @@ def _screenshot(page, name: str) -> None:
     page.set_viewport_size({"width": 1400, "height": 1000})
 
 
+def _plots(page) -> list[dict]:
+    return page.evaluate(PLOTS_JS)
+
+
+def _plot(page, title: str, check=lambda plot: bool(plot["names"])) -> dict:
+    """The first chart whose title starts with ``title`` and for which ``check`` holds, once drawn so."""
+    deadline = time.monotonic() + SLOW_MS / 1000
+    while True:
+        found = [plot for plot in _plots(page) if plot["title"].startswith(title) and check(plot)]
+        if found:
+            return found[0]
+        if time.monotonic() > deadline:
+            charts = [(plot["title"], plot["xrange"], plot["xmin"], plot["x0"]) for plot in _plots(page)]
+            raise AssertionError(f"no chart {title!r} passing the check; charts: {charts}")
+        time.sleep(0.5)
+
+
+def _same_window(plot: dict, window: tuple[float, float], tolerance: float = 0.011) -> bool:
+    """The chart's first x axis shows ``window`` [s] (to ``tolerance``)."""
+    return plot["xrange"] is not None and all(abs(a - b) < tolerance
+                                              for a, b in zip(plot["xrange"], window, strict=True))
+
+
 def _open(page, title: str) -> None:
     page.locator("[data-testid='stSidebarNav'] a", has_text=title).first.click()
     page.locator("[data-testid='stMain'] h1", has_text=title).wait_for()
@@ -117,35 +172,99 @@ def _open(page, title: str) -> None:
 def test_upload_run_and_compare_in_a_browser(page):
     page.locator("[data-testid='stMain'] h1", has_text="solarnav").wait_for()
     _settle(page)
-    uploaders = page.locator("[data-testid='stFileUploader']")
-    for k, name in enumerate((f"{SAMPLE}.ulg", f"{SAMPLE}_sun.csv", f"{SAMPLE}_device.json")):
-        uploaders.nth(k).locator("input[type='file']").set_input_files(str(SAMPLE_DIR / name))
-        uploaders.nth(k).locator("[data-testid='stFileChipDeleteBtn']").wait_for()  # the upload has finished
+    for label, name in (("PX4 ULog", f"{SAMPLE}.ulg"), ("Sun-device log", f"{SAMPLE}_sun.csv"),
+                        ("Sun-device geometry", f"{SAMPLE}_device.json")):
+        uploader = page.locator("[data-testid='stFileUploader']").filter(has_text=label)
+        uploader.locator("input[type='file']").set_input_files(str(SAMPLE_DIR / name))
+        uploader.locator("[data-testid='stFileChipDeleteBtn']").wait_for()  # the upload has finished
     page.get_by_role("button", name="Add to the workspace").click()
     page.wait_for_function("() => document.querySelector('input[aria-label=\"Flight log\"]')"
                            f".value.startsWith('{SAMPLE}.ulg')", timeout=SLOW_MS)
     _settle(page)
-    _screenshot(page, "1_home")
+    _screenshot(page, "home")
 
+    # time axes in seconds since the log start (issue 14; the bundled sample: the real logs' sample_px4_events.ulg
+    # is not available to the test)
     _open(page, "Overview")
     assert page.locator("[data-testid='stMetric']").filter(has_text="Data duration").count() == 1
-    _screenshot(page, "2_overview")
+    altitude = _plot(page, "Altitude and flight phases", lambda plot: plot["xmin"] is not None)
+    assert 0 <= altitude["xmin"] < 5, altitude["xmin"]
+    _screenshot(page, "overview")
     _open(page, "Calibration")
     page.get_by_role("heading", name="Results").wait_for()
-    _screenshot(page, "3_calibration")
+    _screenshot(page, "calibration")
 
+    # one run: default settings (all estimators, magnetometer heading, default R)
     _open(page, "Estimators")
     page.get_by_role("button", name="Run estimators").click()
     page.get_by_role("heading", name="RMS errors (paper Table 2 layout)").wait_for(timeout=RUN_MS)
     _settle(page)
     rms_table = page.locator("[data-testid='stTable']").filter(has_text="Roll Angle (deg)")
-    for estimator in ("three_stage", "full_state_direct", "full_state_indirect"):
+    for estimator in ESTIMATORS:
         assert rms_table.get_by_text(estimator, exact=True).is_visible()
     page.locator(".js-plotly-plot .legendtext").first.wait_for()
     legend = page.eval_on_selector_all(".js-plotly-plot .legendtext", "texts => texts.map(t => t.textContent)")
-    assert {"three_stage", "full_state_direct", "full_state_indirect", "truth"} <= set(legend)
-    _screenshot(page, "4_estimators")
+    assert {*ESTIMATORS, "truth"} <= set(legend)
+    _screenshot(page, "estimators_one_run")
+
+    # a second run with the sun-vector heading: added to the runs shown, overlaid, compared in the RMS table
+    page.locator("[data-testid='stRadio']").filter(has_text="Heading aid").get_by_text(
+        "sun vector", exact=True).click()
+    page.get_by_role("button", name="Run estimators").click()
+    page.get_by_text("Every run against the baseline").wait_for(timeout=RUN_MS)
+    _settle(page)
+    runs_select = page.locator("[data-testid='stMultiSelect']").filter(has_text="Runs")
+    assert runs_select.locator("[data-testid='stMultiSelectTagsContainer'] [data-tag]").count() == 2
+    attitude = _plot(page, "Attitude", lambda plot: sum(" · " in name for name in plot["names"]) >= 6)
+    run_names = {name.split(" · ", 1)[1] for name in attitude["names"] if " · " in name}
+    assert len(run_names) == 2, attitude["names"]
+    for estimator in ESTIMATORS:
+        for run_name in run_names:
+            assert f"{estimator} · {run_name}" in attitude["names"], attitude["names"]
+    rms_table = page.locator("[data-testid='stTable']").filter(has_text="(baseline)")
+    rms_table.wait_for()
+    cells = rms_table.locator("td").all_inner_texts()
+    assert any(RMS_DELTA_CELL.search(cell) for cell in cells), cells
+    assert sum("(baseline)" in cell for cell in cells) >= len(ESTIMATORS)
+    _screenshot(page, "estimators_two_runs")
+
+    # zoom: the page's one time range, moved on the keyboard, is the x range of every time chart
+    full = tuple(attitude["xrange"])
+    slider = page.locator("[data-testid='stSlider']").filter(has_text="Time range [s since log start]")
+    thumbs = slider.get_by_role("slider")
+    assert thumbs.count() == 2
+    span = full[1] - full[0]
+    expected = (full[0] + 0.2 * span, full[1] - 0.3 * span)  # PageUp / PageDown: a tenth of the span each
+    for thumb, key, presses in ((0, "PageUp", 2), (1, "PageDown", 3)):
+        thumbs.nth(thumb).focus()
+        for _ in range(presses):
+            page.keyboard.press(key)
+        _settle(page)
+    attitude = _plot(page, "Attitude", lambda plot: _same_window(plot, expected, 0.01 * span))
+    zoomed = tuple(attitude["xrange"])
+    _screenshot(page, "estimators_zoomed_attitude")
+    page.locator("[data-testid='stButtonGroup']").filter(has_text="Attitude").get_by_text(
+        "Innovations and NIS", exact=True).click()
+    _settle(page)
+    innovations = _plot(page, "three_stage: ", lambda plot: plot["title"].endswith("innovations"))
+    nis = _plot(page, "three_stage: ", lambda plot: plot["title"].endswith("NIS"))
+    for plot in (innovations, nis):
+        assert _same_window(plot, zoomed), (plot["title"], plot["xrange"], zoomed)
+    _screenshot(page, "estimators_zoomed_innovations")
+
+    # the map: GPS and the estimators of the baseline run on a plotly map
+    _open(page, "Map")
+    page.get_by_role("heading", name="Local NED").wait_for()
+    drawn = _plot(page, "", lambda plot: "scattermap" in plot["types"])
+    drawn = {name for name, kind in zip(drawn["names"], drawn["types"], strict=True) if kind == "scattermap"}
+    assert page.locator(".js-plotly-plot .maplibregl-canvas").count() == 1  # MapLibre drew it
+    assert "GPS" in drawn and drawn & set(ESTIMATORS), drawn
+    _screenshot(page, "map")
 
     _open(page, "Sun vector")
     assert page.locator("[data-testid='stMetric']").filter(has_text="Most often faulty").count() == 1
-    _screenshot(page, "5_sun_vector")
+    _screenshot(page, "sun_vector")
+
+    _open(page, "Workspace")
+    page.get_by_role("heading", name="Rename or delete").wait_for()
+    _screenshot(page, "workspace")
