@@ -504,6 +504,18 @@ def innovation_figure(diagnostics: pd.DataFrame, units: Mapping[str, str], *, ti
     return apply_time_range(fig, window)
 
 
+def _nis_frame(fig: go.Figure, band: tuple[float, float], window: int, *, title: str | None, time_base,
+               time_window) -> go.Figure:
+    """The moving-NIS chart's band, expected value 1, log y axis and time range."""
+    fig.add_hrect(y0=band[0], y1=band[1], fillcolor="rgba(44,160,44,0.15)", line_width=0, layer="below")
+    fig.add_hline(y=1.0, line_dash="dash", line_color="#2ca02c",
+                  annotation_text=f"95 % chi-square band for {window} updates", annotation_position="top left")
+    base_layout(fig, x_title=TIME_TITLE if time_base is not None else LOG_CLOCK_TITLE,
+                y_title=f"mean NIS over {window} updates [-]", height=320, title=title)
+    fig.update_yaxes(type="log")
+    return apply_time_range(fig, time_window)
+
+
 def nis_figure(moving: pd.DataFrame, window: int, band: tuple[float, float], *, title: str,
                max_points: int = MAX_POINTS, time_base: TimeBase | None = None,
                time_window: Sequence[float] | None = None) -> go.Figure:
@@ -515,13 +527,7 @@ def nis_figure(moving: pd.DataFrame, window: int, band: tuple[float, float], *, 
         fig.add_trace(line(part["time_s"].to_numpy(float), part["mean_nis"].to_numpy(float), str(component),
                            max_points=max_points, color=AXIS_COLORS[k % len(AXIS_COLORS)], time_base=time_base,
                            window=time_window))
-    fig.add_hrect(y0=band[0], y1=band[1], fillcolor="rgba(44,160,44,0.15)", line_width=0, layer="below")
-    fig.add_hline(y=1.0, line_dash="dash", line_color="#2ca02c",
-                  annotation_text=f"95 % chi-square band for {window} updates", annotation_position="top left")
-    base_layout(fig, x_title=TIME_TITLE if time_base is not None else LOG_CLOCK_TITLE,
-                y_title=f"mean NIS over {window} updates [-]", height=320, title=title)
-    fig.update_yaxes(type="log")
-    return apply_time_range(fig, time_window)
+    return _nis_frame(fig, band, window, title=title, time_base=time_base, time_window=time_window)
 
 
 # ---------------------------------------------------------------------------------------------------- sun vector
@@ -698,10 +704,4 @@ def overlay_nis_figure(per_run: Mapping[str, pd.DataFrame], estimator: str, wind
                          window=time_window)
             trace.line.dash = dash
             fig.add_trace(trace)
-    fig.add_hrect(y0=band[0], y1=band[1], fillcolor="rgba(44,160,44,0.15)", line_width=0, layer="below")
-    fig.add_hline(y=1.0, line_dash="dash", line_color="#2ca02c",
-                  annotation_text=f"95 % chi-square band for {window} updates", annotation_position="top left")
-    base_layout(fig, x_title=TIME_TITLE if time_base is not None else LOG_CLOCK_TITLE,
-                y_title=f"mean NIS over {window} updates [-]", height=320, title=title)
-    fig.update_yaxes(type="log")
-    return apply_time_range(fig, time_window)
+    return _nis_frame(fig, band, window, title=title, time_base=time_base, time_window=time_window)

@@ -8,21 +8,12 @@ import pytest
 
 from app import comparison, sun_compare
 from ingest import SunDevice
-from ingest.flightlog import FlightLog, LogMetadata
+from ingest.flightlog import FlightLog
+from tests.app_logs import truth_only_log
 
 
-def _log(n: int = 2000, rate_hz: float = 25.0) -> FlightLog:
-    """A log with ground truth only: level flight north at 10 m/s in a 1 m/s northerly wind."""
-    time_s = 10.0 + np.arange(n) / rate_hz
-    index = pd.Index(time_s, name="time_s")
-    lat = 35.0 + 10.0 * (time_s - time_s[0]) / 111_000.0
-    return FlightLog(streams={
-        "gps": pd.DataFrame({"lat_deg": lat, "lon_deg": 108.0, "alt_m": 600.0}, index=index),
-        "truth_attitude": pd.DataFrame({"roll_deg": 0.0, "pitch_deg": 0.0, "yaw_deg": 179.0}, index=index),
-        "truth_global_position": pd.DataFrame({"lat_deg": lat, "lon_deg": 108.0, "alt_m": 600.0}, index=index),
-        "truth_local_position": pd.DataFrame({"vx_m_s": 10.0, "vy_m_s": 0.0, "vz_m_s": 0.0}, index=index),
-        "truth_wind": pd.DataFrame({"wind_n_m_s": 1.0, "wind_e_m_s": 0.0}, index=index),
-    }, meta=LogMetadata(source="synthetic.ulg"))
+def _log() -> FlightLog:
+    return truth_only_log(yaw_deg=179.0)
 
 
 def _estimate(log: FlightLog, name: str, yaw_deg: float, alt_offset_m: float) -> pd.DataFrame:

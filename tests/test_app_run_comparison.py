@@ -16,7 +16,8 @@ from streamlit.testing.v1 import AppTest
 from app import adapters, comparison, figures, runs, samples, session, tables
 from app.workspace import Workspace
 from estimators.core.results import DIAGNOSTIC_COLUMNS, STATE_COLUMNS
-from ingest.flightlog import FlightLog, LogMetadata
+from ingest.flightlog import FlightLog
+from tests.app_logs import truth_only_log
 from tests.conftest import REPO_DIR
 
 ENTRYPOINT = REPO_DIR / "app" / "dashboard.py"
@@ -24,20 +25,6 @@ SHORT_SAMPLE = samples.SAMPLE_DIR / "failed_cell.ulg"
 TIMEOUT_S = 300
 POSITION = "Position (m)"
 ESTIMATORS = ("three_stage", "full_state_indirect")
-
-
-def _log(n: int = 2000, rate_hz: float = 25.0) -> FlightLog:
-    """Ground truth only: level flight north at 10 m/s in a 1 m/s northerly wind."""
-    time_s = 10.0 + np.arange(n) / rate_hz
-    index = pd.Index(time_s, name="time_s")
-    lat = 35.0 + 10.0 * (time_s - time_s[0]) / 111_000.0
-    return FlightLog(streams={
-        "gps": pd.DataFrame({"lat_deg": lat, "lon_deg": 108.0, "alt_m": 600.0}, index=index),
-        "truth_attitude": pd.DataFrame({"roll_deg": 0.0, "pitch_deg": 0.0, "yaw_deg": 0.0}, index=index),
-        "truth_global_position": pd.DataFrame({"lat_deg": lat, "lon_deg": 108.0, "alt_m": 600.0}, index=index),
-        "truth_local_position": pd.DataFrame({"vx_m_s": 10.0, "vy_m_s": 0.0, "vz_m_s": 0.0}, index=index),
-        "truth_wind": pd.DataFrame({"wind_n_m_s": 1.0, "wind_e_m_s": 0.0}, index=index),
-    }, meta=LogMetadata(source="synthetic.ulg"))
 
 
 def _states(log: FlightLog, offsets: dict[str, tuple[float, float]], step: int = 2) -> pd.DataFrame:
@@ -79,7 +66,7 @@ def test_overlay_sources_names_each_estimator_per_run_and_keeps_references_once(
 
 
 def test_overlay_figures_style_every_series_and_keep_the_window():
-    log = _log()
+    log = truth_only_log()
     results = comparison.compare_runs({"default": _states(log, {"three_stage": (5.0, 0.0)}),
                                        "tuned": _states(log, {"three_stage": (1.0, 0.0)})}, log)
     per_run = {name: result.quantities for name, result in results.items()}
@@ -122,7 +109,7 @@ def test_overlay_figures_style_every_series_and_keep_the_window():
 
 
 def test_rms_comparison_of_synthetic_runs_gives_baseline_deltas():
-    log = _log()
+    log = truth_only_log()
     results = comparison.compare_runs({
         "default": _states(log, {"three_stage": (5.0, 2.0), "full_state_indirect": (2.0, 1.0)}),
         "calibrated": _states(log, {"three_stage": (5.0, 1.0), "full_state_indirect": (4.0, 1.0),
