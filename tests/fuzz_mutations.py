@@ -21,6 +21,7 @@ from __future__ import annotations
 import collections
 import contextlib
 import dataclasses
+import functools
 import json
 import math
 import multiprocessing
@@ -327,6 +328,16 @@ def ci_seeds(target: str) -> list[Seed]:
 
 
 def default_seeds(target: str, *, include_real: bool = True, ulog_data_bytes: int = 192 * 1024) -> list[Seed]:
+    """The seed files of ``target`` (made once per process and argument set)."""
+    return list(_default_seeds(target, include_real, ulog_data_bytes))
+
+
+@functools.lru_cache(maxsize=16)
+def _default_seeds(target: str, include_real: bool, ulog_data_bytes: int) -> tuple[Seed, ...]:
+    return tuple(_make_seeds(target, include_real, ulog_data_bytes))
+
+
+def _make_seeds(target: str, include_real: bool, ulog_data_bytes: int) -> list[Seed]:
     if target == "ulog":
         return ulog_seeds(default_ulog_sources(include_real), data_bytes=ulog_data_bytes)
     if target == "sun_csv":
@@ -1645,5 +1656,5 @@ def signature_slug(signature: str) -> str:
 
 
 def corpus_files(root: Path = CORPUS_DIR) -> list[Path]:
-    """Every kept regression input under ``tests/data/fuzz/<target>/``."""
-    return sorted(p for p in root.glob("*/*") if p.is_file() and p.suffix.lstrip(".") in TARGET_OF_EXTENSION)
+    """Every input under ``root`` (``tests/data/fuzz/**``: the kept regression inputs), by extension."""
+    return sorted(p for p in root.rglob("*") if p.is_file() and p.suffix.lstrip(".") in TARGET_OF_EXTENSION)

@@ -23,8 +23,9 @@ import time
 import fuzz_mutations as fm
 import pytest
 
-#: Per-case time limit [s]: a clean seed loads in well under 0.2 s; a case that takes longer than this is a hang.
-CASE_TIMEOUT_S = 4.0
+#: Per-case time limit [s]: a clean seed loads in about 0.05 s, the slowest mutated case in 10000 took 1.3 s; a case
+#: that takes longer than this under CI load is a hang.
+CASE_TIMEOUT_S = 6.0
 #: CI cases per target, split into chunks so that pytest-xdist can spread them over its workers.
 CI_CASES = {"ulog": (300, 2), "sun_csv": (150, 1), "device_json": (100, 1)}
 #: Case seeds of the CI run start here (the benchmark starts at 0).
