@@ -236,10 +236,10 @@ def test_upload_run_and_compare_in_a_browser(page):
     span = full[1] - full[0]
     expected = (full[0] + 0.2 * span, full[1] - 0.3 * span)  # PageUp / PageDown: a tenth of the span each
     for thumb, key, presses in ((0, "PageUp", 2), (1, "PageDown", 3)):
-        thumbs.nth(thumb).focus()
-        for _ in range(presses):
+        for _ in range(presses):  # each press reruns the page, which may take the focus: focus again every time
+            thumbs.nth(thumb).focus()
             page.keyboard.press(key)
-        _settle(page)
+            _settle(page)
     attitude = _plot(page, "Attitude", lambda plot: _same_window(plot, expected, 0.01 * span))
     zoomed = tuple(attitude["xrange"])
     _screenshot(page, "estimators_zoomed_attitude")
