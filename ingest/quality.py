@@ -178,22 +178,18 @@ def imu_gap_findings(time_s: np.ndarray, label: str = "imu") -> list[QualityFind
     longest_s, fraction = float(dt[k]), float(dt[is_gap].sum() / span_s)
     figures = (f"{label}: {int(is_gap.sum())} gaps, longest {longest_s:.2f} s at {time_s[k]:.3f} s, "
                f"{100 * fraction:.1f} % of the flight without IMU data")
-    if longest_s > IMU_GAP_REFUSE_S or fraction > IMU_GAP_FRACTION_REFUSE:
-        by_length = longest_s > IMU_GAP_REFUSE_S
-        return [QualityFinding(
-            "imu_gaps", REFUSE, "imu",
-            f"{figures} (limits {IMU_GAP_REFUSE_S:g} s, {100 * IMU_GAP_FRACTION_REFUSE:g} %): the filter "
-            "would dead-reckon across them on held rates",
-            longest_s if by_length else fraction, IMU_GAP_REFUSE_S if by_length else IMU_GAP_FRACTION_REFUSE,
-            "s" if by_length else "fraction")]
-    if longest_s > IMU_GAP_FLAG_S or fraction > IMU_GAP_FRACTION_FLAG:
-        by_length = longest_s > IMU_GAP_FLAG_S
-        return [QualityFinding(
-            "imu_gaps", FLAG, "imu",
-            f"{figures} (flagged above {IMU_GAP_FLAG_S:g} s or {100 * IMU_GAP_FRACTION_FLAG:g} %): propagated "
-            "across on held rates",
-            longest_s if by_length else fraction, IMU_GAP_FLAG_S if by_length else IMU_GAP_FRACTION_FLAG,
-            "s" if by_length else "fraction")]
+    for severity, limit_s, limit_fraction, consequence in (
+            (REFUSE, IMU_GAP_REFUSE_S, IMU_GAP_FRACTION_REFUSE,
+             f"(limits {IMU_GAP_REFUSE_S:g} s, {100 * IMU_GAP_FRACTION_REFUSE:g} %): the filter would dead-reckon "
+             "across them on held rates"),
+            (FLAG, IMU_GAP_FLAG_S, IMU_GAP_FRACTION_FLAG,
+             f"(flagged above {IMU_GAP_FLAG_S:g} s or {100 * IMU_GAP_FRACTION_FLAG:g} %): propagated across on "
+             "held rates")):
+        if longest_s > limit_s or fraction > limit_fraction:
+            by_length = longest_s > limit_s
+            return [QualityFinding("imu_gaps", severity, "imu", f"{figures} {consequence}",
+                                   longest_s if by_length else fraction, limit_s if by_length else limit_fraction,
+                                   "s" if by_length else "fraction")]
     return []
 
 

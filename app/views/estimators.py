@@ -212,17 +212,23 @@ def comparison_plots() -> None:
                                                 window=window), key="est_states")
 
 
-def innovation_plots(window: tuple[float, float]) -> None:
-    """Consistency summary, then the innovations and NIS of one estimator's sensor."""
-    summary = adapters.nis_summary(root, run_id)
-    st.dataframe(tables.verdict_style(tables.with_nis_verdicts(summary)), hide_index=True, key="nis_summary",
+def nis_table_and_choice(table: pd.DataFrame, estimators: list[str]) -> tuple[str, str | None, int]:
+    """The NIS table with its verdicts, then the estimator, sensor and NIS window [updates] to plot."""
+    st.dataframe(tables.verdict_style(tables.with_nis_verdicts(table)), hide_index=True, key="nis_summary",
                  column_config={"why": st.column_config.TextColumn("why", width="large")})
     left, middle, right = st.columns(3)
-    estimator = left.selectbox("Estimator", list(report), key="est_diag_estimator")
-    sensor = middle.selectbox("Sensor", list(summary.loc[summary["estimator"] == estimator, "sensor"]),
+    estimator = left.selectbox("Estimator", estimators, key="est_diag_estimator")
+    sensor = middle.selectbox("Sensor", list(dict.fromkeys(table.loc[table["estimator"] == estimator, "sensor"])),
                               key="est_diag_sensor")
     nis_window = right.select_slider("NIS window [updates]", [10, 20, 50, 100, 200, 500], value=50,
                                      key="est_window")
+    return estimator, sensor, nis_window
+
+
+def innovation_plots(window: tuple[float, float]) -> None:
+    """Consistency summary, then the innovations and NIS of one estimator's sensor."""
+    summary = adapters.nis_summary(root, run_id)
+    estimator, sensor, nis_window = nis_table_and_choice(summary, list(report))
     if sensor is None:
         st.info(f"{estimator} fused no measurement.")
         return
@@ -241,15 +247,8 @@ def innovation_overlays(window: tuple[float, float]) -> None:
     estimator and sensor adjacent), then one estimator's sensor in every run overlaid."""
     summaries = {name: adapters.nis_summary(root, rid) for name, rid in shown.items()}
     table = comparison.nis_comparison(summaries)
-    st.dataframe(tables.verdict_style(tables.with_nis_verdicts(table)), hide_index=True, key="nis_summary",
-                 column_config={"why": st.column_config.TextColumn("why", width="large")})
-    left, middle, right = st.columns(3)
     estimators = list(dict.fromkeys([*(e for r in reports.values() for e in r), *table["estimator"]]))
-    estimator = left.selectbox("Estimator", estimators, key="est_diag_estimator")
-    sensor = middle.selectbox("Sensor", list(dict.fromkeys(table.loc[table["estimator"] == estimator, "sensor"])),
-                              key="est_diag_sensor")
-    nis_window = right.select_slider("NIS window [updates]", [10, 20, 50, 100, 200, 500], value=50,
-                                     key="est_window")
+    estimator, sensor, nis_window = nis_table_and_choice(table, estimators)
     if sensor is None:
         st.info(f"{estimator} fused no measurement in the selected runs.")
         return
