@@ -23,15 +23,23 @@ refuse').
 from __future__ import annotations
 
 import dataclasses
+import math
+import os
 import time
 from collections.abc import Callable, Mapping, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, replace
 
 import numpy as np
 import pandas as pd
 
 from estimators.config import EstimatorConfig
-from estimators.consistency import channel_consistency, consistency_warnings
+from estimators.consistency import (
+    REVERSED_AIRFLOW_LIMIT,
+    channel_consistency,
+    consistency_warnings,
+    reversed_airflow_fraction,
+)
 from estimators.core.results import DIAGNOSTIC_COLUMNS, STATE_COLUMNS, EstimatorReport, EstimatorRun
 from estimators.direct.run import run as run_direct
 from estimators.indirect.run import run as run_indirect
@@ -125,7 +133,8 @@ def run_estimators(flight_log: FlightLog, *, estimators: str | Sequence[str] = D
                    config: EstimatorConfig | None = None, heading: str = "mag", rate_hz: float = 50.0,
                    sun_observations: pd.DataFrame | None = None,
                    configs: Mapping[str, EstimatorConfig] | None = None,
-                   allow_untrusted: bool = False) -> ReplayResult:
+                   allow_untrusted: bool = False, threads: int | None = None,
+                   progress: Callable[[str, str], None] | None = None) -> ReplayResult:
     """Run estimators on one log.
 
     Parameters
@@ -150,6 +159,13 @@ def run_estimators(flight_log: FlightLog, *, estimators: str | Sequence[str] = D
     allow_untrusted : bool
         Replay a log whose inputs are refused (``solarnav replay --force``); every report then leads its warnings
         with each refused finding (:data:`UNTRUSTED_PREFIX`).
+    threads : int, optional
+        Estimators run at the same time (default: one per estimator, at most one per CPU); their compiled kernels
+        release the GIL, so the threads share the one set of replay inputs without copies. Results do not depend
+        on it.
+    progress : callable, optional
+        ``progress(stage, estimator)`` with ``stage`` in ``"prepare"`` (building its inputs), ``"run"`` (its filter
+        started) and ``"done"``; called from the worker threads.
 
     Every report carries ``details["consistency"]`` (mean NIS per channel, :mod:`estimators.consistency`) and
     ``details["calibration"]`` (each calibrated figure behind the run's settings: its source and what this
@@ -173,18 +189,33 @@ def run_estimators(flight_log: FlightLog, *, estimators: str | Sequence[str] = D
     config = EstimatorConfig() if config is None else config
     configs = {name: (configs or {}).get(name, config) for name in names}
     functions = {name: estimator_function(name) for name in names}
-    runs, reports, built = [], {}, {}
-    for name, function in functions.items():
+    notify = progress if progress is not None else (lambda stage, name: None)
+    inputs, prepare_s, built = {}, {}, []
+    for name in names:  # inputs once per distinct configuration, shared read-only by the estimators
         started = time.perf_counter()
-        run_config = configs[name]
-        key = next((k for k, c in built.items() if c[0] == run_config), len(built))
-        if key not in built:
-            built[key] = (run_config, build_replay_inputs(flight_log, run_config, rate_hz=rate_hz, heading=heading,
-                                                          sun_observations=sun_observations))
-        prepare_s = time.perf_counter() - started
-        run = function(flight_log, built[key][1], run_config)
-        reports[name] = _checked_report(run, run_config, {"prepare": prepare_s, **run.report.timings_s}, findings)
-        runs.append(run)
+        notify("prepare", name)
+        shared = next((replay_inputs for run_config, replay_inputs in built if run_config == configs[name]), None)
+        if shared is None:
+            shared = build_replay_inputs(flight_log, configs[name], rate_hz=rate_hz, heading=heading,
+                                         sun_observations=sun_observations)
+            built.append((configs[name], shared))
+        inputs[name], prepare_s[name] = shared, time.perf_counter() - started
+
+    def run_one(name: str) -> EstimatorRun:
+        notify("run", name)
+        run = functions[name](flight_log, inputs[name], configs[name])
+        notify("done", name)
+        return run
+
+    workers = min(len(names), os.cpu_count() or 1) if threads is None else max(1, int(threads))
+    if workers > 1:  # the kernels release the GIL (nogil): the estimators run side by side
+        with ThreadPoolExecutor(max_workers=workers, thread_name_prefix="estimator") as pool:
+            runs = list(pool.map(run_one, names))
+    else:
+        runs = [run_one(name) for name in names]
+    reports = {name: _checked_report(run, configs[name], {"prepare": prepare_s[name], **run.report.timings_s},
+                                     findings, fixed_wing=inputs[name].plan.fixed_wing)
+               for name, run in zip(names, runs, strict=True)}
     state_columns = dict.fromkeys(column for run in runs for column in run.states.columns)
     extra = [column for column in state_columns if column not in STATE_COLUMNS]
     states = _stacked(names, [run.states for run in runs], (*STATE_COLUMNS[1:], *extra))
@@ -233,9 +264,10 @@ def _stacked(names: tuple[str, ...], frames: list[pd.DataFrame], columns: Sequen
 
 
 def _checked_report(run: EstimatorRun, config: EstimatorConfig, timings: dict[str, float],
-                    findings: Sequence[QualityFinding] = ()) -> EstimatorReport:
+                    findings: Sequence[QualityFinding] = (), *, fixed_wing: bool = False) -> EstimatorReport:
     """The run's report with its timings, the NIS consistency per channel, the calibration provenance, the input
-    quality findings (leading the warnings) and, for a calibrated run, a warning per inconsistent channel."""
+    quality findings (leading the warnings), for a calibrated run a warning per inconsistent channel, and for a
+    fixed-wing aircraft a warning when its wind estimate has the air flowing backwards through the airframe."""
     report = run.report
     channels = channel_consistency(run.diagnostics)
     provenance = config.calibrated.provenance
@@ -246,6 +278,12 @@ def _checked_report(run: EstimatorRun, config: EstimatorConfig, timings: dict[st
     warnings = [*quality_warnings(findings), *report.warnings]
     if provenance:
         warnings += consistency_warnings(report.estimator, channels)
+    reversed_share = reversed_airflow_fraction(run.states) if fixed_wing else math.nan
+    if reversed_share > REVERSED_AIRFLOW_LIMIT:
+        warnings.append(f"{report.estimator}: wind estimate not trusted: in {100 * reversed_share:.0f} % of the "
+                        "wing-borne epochs the estimated air flows backwards through the airframe (the mirrored "
+                        "solution of airspeed and sideslip; wind noise set too high or a wrong heading)")
     details = {**report.details, "consistency": [dataclasses.asdict(c) for c in channels],
+               "reversed_airflow_fraction": reversed_share if math.isfinite(reversed_share) else None,
                "calibration": calibration, "input_quality": [dataclasses.asdict(f) for f in findings]}
     return replace(report, timings_s=timings, warnings=tuple(warnings), details=details)

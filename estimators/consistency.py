@@ -1,6 +1,7 @@
 """Is a replay to be trusted? Mean NIS per measurement channel against its chi-square band, the innovation
-log-likelihood noise identification maximises, and a turbulence-intensity figure from the wind estimate
-(docs/calibration.md, 'Noise identification' and 'Consistency checks').
+log-likelihood noise identification maximises, a turbulence-intensity figure from the wind estimate and a check that
+the estimated air flows forward through the airframe (docs/calibration.md, 'Noise identification' and
+'Consistency checks').
 """
 
 from __future__ import annotations
@@ -25,6 +26,12 @@ LIKELIHOOD_CLIP_SIGMA = 5.0
 MIN_UPDATES = 20
 #: Window of the moving mean that separates the mean wind from gusts [s].
 GUST_WINDOW_S = 60.0
+#: Estimated horizontal air speed above which an epoch counts as wing-borne flight [m/s] (below every fixed-wing
+#: stall speed; a hovering multirotor stays under it).
+AIRBORNE_AIR_SPEED_M_S = 5.0
+#: Largest share of wing-borne epochs with the air flowing backwards through the airframe that is still noise (a
+#: tail-wind transient or a gust at low airspeed); above it the wind estimate is the mirrored solution.
+REVERSED_AIRFLOW_LIMIT = 0.05
 
 
 def log_likelihood(diagnostics: pd.DataFrame) -> float:
@@ -89,3 +96,32 @@ def turbulence_intensity_m_s(states: pd.DataFrame, *, settle_s: float = 60.0) ->
     values = wind[["wind_n_m_s", "wind_e_m_s"]]
     gust = values - values.rolling(window, center=True, min_periods=1).mean()
     return float(np.sqrt(np.mean(np.sum(gust.to_numpy() ** 2, axis=1))))
+
+
+def reversed_airflow_fraction(states: pd.DataFrame, *, min_air_speed_m_s: float = AIRBORNE_AIR_SPEED_M_S) -> float:
+    """Share of the epochs whose estimated air velocity points backwards through the airframe (body-x component
+    below zero) among those with an estimated horizontal air speed of at least ``min_air_speed_m_s``; NaN without
+    a wind estimate or such epochs.
+
+    A true-airspeed magnitude and a zero-sideslip constraint cannot tell an aircraft flying forward through the air
+    from one flying backwards through an air mass moving at twice its airspeed: both fit every airspeed and GPS
+    innovation. Only this geometric check, which needs no truth, shows a replay that took the mirrored solution
+    (docs/calibration.md, 'Consistency checks').
+
+    ``states``: one estimator's rows of the states table (``roll_deg`` is not needed; ``pitch_deg``, ``yaw_deg``,
+    NED ground velocity ``vn_m_s``, ``ve_m_s``, ``vd_m_s`` and wind ``wind_n_m_s``, ``wind_e_m_s`` [m/s]).
+    """
+    columns = ["pitch_deg", "yaw_deg", "vn_m_s", "ve_m_s", "vd_m_s", "wind_n_m_s", "wind_e_m_s"]
+    if any(c not in states.columns for c in columns):
+        return math.nan
+    values = states[columns].dropna().to_numpy(dtype=float)
+    if len(values) == 0:
+        return math.nan
+    pitch, yaw = np.radians(values[:, 0]), np.radians(values[:, 1])
+    air_n, air_e, air_d = values[:, 2] - values[:, 5], values[:, 3] - values[:, 6], values[:, 4]
+    airborne = np.hypot(air_n, air_e) >= min_air_speed_m_s
+    if not airborne.any():
+        return math.nan
+    # First row of the NED-to-body rotation: the body-x (forward) component of the air velocity.
+    forward = np.cos(pitch) * (np.cos(yaw) * air_n + np.sin(yaw) * air_e) - np.sin(pitch) * air_d
+    return float(np.mean(forward[airborne] < 0.0))

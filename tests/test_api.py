@@ -157,3 +157,16 @@ def test_replay_command(real_logs_dir, tmp_path, capsys):
     assert main(["replay", str(log), "--estimators", "nope", "-o", str(tmp_path / "x.csv")]) == 2
     assert "unknown estimator" in capsys.readouterr().err
     assert not (tmp_path / "x.csv").exists()
+
+
+def test_estimators_in_threads_equal_one_after_the_other(flight):
+    """The estimators share one set of replay inputs across threads: nothing they read may be changed by another
+    (a run in place on a shared array would show here as a difference)."""
+    events = []
+    threaded = run_estimators(flight, threads=3, progress=lambda stage, name: events.append((stage, name)))
+    serial = run_estimators(flight, threads=1)
+    pd.testing.assert_frame_equal(threaded.states, serial.states)
+    pd.testing.assert_frame_equal(threaded.diagnostics, serial.diagnostics)
+    for name in ESTIMATORS:
+        stages = [stage for stage, estimator in events if estimator == name]
+        assert stages == ["prepare", "run", "done"], (name, stages)

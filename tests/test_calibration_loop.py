@@ -32,6 +32,8 @@ from estimators.calibration_replay import inflight_bias
 from estimators.config import EstimatorConfig, config_from_calibration, config_from_figures
 from estimators.consistency import (
     LIKELIHOOD_CLIP_SIGMA,
+    MIN_UPDATES,
+    NIS_WARNING_RANGE,
     channel_consistency,
     consistency_warnings,
     log_likelihood,
@@ -40,7 +42,7 @@ from estimators.consistency import (
 from estimators.evaluation import SIM_AIR_DENSITY_KG_M3
 from estimators.inputs.build import build_replay_inputs
 from estimators.inputs.records import MAG
-from estimators.tuning import tune_estimator
+from estimators.tuning import NIS_START_TOLERANCE, tune_estimator
 from ingest.ulog_reader import load_flight_log
 from sim.scenarios import SCENARIOS
 from sim.simulate import simulate
@@ -238,6 +240,14 @@ def test_identification_recovers_the_injected_noise():
     effective = result.figures["gps_vel_noise_scale"].value * max(receiver, DEFAULT_NOISE.gps_vel_sigma_floor_m_s)
     assert truth["gps_vel"] / 2.0 <= effective <= 2.0 * truth["gps_vel"]
     assert effective < DEFAULT_NOISE.gps_vel_sigma_floor_m_s
+    # the kept setting is consistent: no channel pushed out of the warning range (a sensor switched off or trusted
+    # too much) beyond the slack of one that started outside it
+    before = {c.channel: c.mean_nis for c in result.nis_before}
+    low, high = NIS_WARNING_RANGE
+    for c in result.nis_after:
+        if c.n_updates >= MIN_UPDATES:
+            start = before[c.channel]
+            assert min(low, start / NIS_START_TOLERANCE) <= c.mean_nis <= max(high, start * NIS_START_TOLERANCE), c
 
 
 # --- d. wind process noise follows turbulence ----------------------------------------------------------------

@@ -26,7 +26,8 @@ C_GPS_RESETS = 3  # GPS re-acquisition resets (docs/estimators.md, 'GPS re-acqui
 C_REPAIRS = 4  # covariance eigenvalue repairs
 C_UPDATES = 5  # scalar updates attempted
 C_OUTPUTS = 6  # output epochs written
-N_SHARED_COUNTERS = 7
+C_WIND_INITS = 7  # wind states set from the airspeed along the heading (full-state filters)
+N_SHARED_COUNTERS = 8
 
 
 def diagnostics_arrays(capacity: int) -> tuple[np.ndarray, np.ndarray]:

@@ -15,7 +15,14 @@ import numpy as np
 import pandas as pd
 
 from estimators import environment
-from estimators.core.recorder import C_DIAG_DROPPED, C_GPS_RESETS, C_REPAIRS, C_RESETS, C_UPDATES
+from estimators.core.recorder import (
+    C_DIAG_DROPPED,
+    C_GPS_RESETS,
+    C_REPAIRS,
+    C_RESETS,
+    C_UPDATES,
+    C_WIND_INITS,
+)
 from estimators.inputs.records import COMPONENT_NAMES, SENSOR_NAMES, Origin, ReplayInputs
 
 #: Columns of the states table, in order.
@@ -143,6 +150,10 @@ def kernel_report(name: str, inputs: ReplayInputs, counters: np.ndarray, *, timi
     notes = list(inputs.warnings)
     if counters[C_RESETS]:
         notes.append(f"{diverged} diverged and was reset {counters[C_RESETS]} times")
+    if counters[C_WIND_INITS] > 1:
+        again = counters[C_WIND_INITS] - 1
+        notes.append(f"wind re-initialised {'once' if again == 1 else f'{again} times'} from the airspeed along "
+                     "the heading (the estimated air flowed backwards through the airframe)")
     notes += list(warnings)
     if counters[C_DIAG_DROPPED]:
         notes.append(f"{counters[C_DIAG_DROPPED]} diagnostics rows dropped")

@@ -36,7 +36,15 @@ from numba import njit
 
 from estimators.core import linalg, reacquisition, recorder, rotations
 from estimators.core.full_state import EIG_FLOOR, PD_CHECK_EVERY, component_range, scalar_innovation
-from estimators.core.recorder import C_GPS_RESETS, C_OUTPUTS, C_REPAIRS, C_RESETS, C_UPDATES, N_SHARED_COUNTERS
+from estimators.core.recorder import (
+    C_GPS_RESETS,
+    C_OUTPUTS,
+    C_REPAIRS,
+    C_RESETS,
+    C_UPDATES,
+    C_WIND_INITS,
+    N_SHARED_COUNTERS,
+)
 from estimators.core.schedule import COVARIANCE, EVENT, PROPAGATE
 from estimators.direct import model
 from estimators.direct.measurements import h_gps_velocity, measurement
@@ -148,6 +156,33 @@ def reset_to_gps(x, P, kind, values, variances, layout, move_wind, R_nb, S_euler
 
 
 @njit(cache=True)
+def initialise_wind(x, P, airspeed_m_s, layout, P0, R_nb, S_euler, W_euler, block):
+    """Wind from the airspeed (docs/estimators.md, 'Wind initialisation'): the air flows along the body x axis at
+    the measured true airspeed, so the horizontal wind is the NED ground velocity minus ``airspeed * R_nb e_x``
+    (north, east); its covariance is the initial wind covariance, uncorrelated with the other states.
+
+    ``layout`` as :func:`estimators.direct.model.layout_of` (wind states present); ``block`` (2, 2) scratch.
+    """
+    iw = layout[L_W]
+    euler_matrices(x[I_TH], x[I_TH + 1], x[I_TH + 2], R_nb, S_euler, W_euler)
+    for c in range(2):
+        ground = R_nb[c, 0] * x[I_V] + R_nb[c, 1] * x[I_V + 1] + R_nb[c, 2] * x[I_V + 2]
+        x[iw + c] = ground - airspeed_m_s * R_nb[c, 0]
+        for d in range(2):
+            block[c, d] = P0[iw + c, iw + d]
+    linalg.reset_covariance_block(P, iw, block)
+
+
+@njit(cache=True)
+def air_flows_backwards(x, layout, R_nb, S_euler, W_euler) -> bool:
+    """The estimated air velocity's body-x component ``(V - R_nb^T wbar)_x`` is negative (the mirrored solution of
+    airspeed magnitude and sideslip)."""
+    iw = layout[L_W]
+    euler_matrices(x[I_TH], x[I_TH + 1], x[I_TH + 2], R_nb, S_euler, W_euler)
+    return x[I_V] - (R_nb[0, 0] * x[iw] + R_nb[1, 0] * x[iw + 1]) < 0.0
+
+
+@njit(cache=True)
 def _output_row(x, P, layout, R_nb, S_euler, W_euler, H, t, out):
     """Fill one output row (:data:`OUT_COLUMNS`): attitude, position, NED velocity ``R_nb V`` and wind with
     their standard deviations (the velocity's from ``H P H^T`` of its model)."""
@@ -224,6 +259,13 @@ def _update(x, P, kind, values, variances, t, settings, gps_mon, air_ok, x_err, 
             if counted:
                 counters[C_GPS_RESETS] += 1
             return air_ok
+    if kind == AIRSPEED and layout[L_W] >= 0 and (counters[C_WIND_INITS] == 0
+                                                  or air_flows_backwards(x, layout, R_nb, S_euler, W_euler)):
+        # first airspeed of the flight, or a wind that has the aircraft flying backwards: no update can leave
+        # that mirrored solution (it fits airspeed and sideslip as well), so the wind starts again from them
+        initialise_wind(x, P, values[0], layout, settings.P0, R_nb, S_euler, W_euler, T[:2, :2])
+        counters[C_WIND_INITS] += 1
+        return True
     field = settings.field_ned
     paper_indirect = settings.paper_indirect
     gate = settings.gates[kind]

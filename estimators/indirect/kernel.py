@@ -42,7 +42,15 @@ from numba import njit
 
 from estimators.core import linalg, reacquisition, recorder
 from estimators.core.full_state import EIG_FLOOR, PD_CHECK_EVERY, component_range, scalar_innovation
-from estimators.core.recorder import C_GPS_RESETS, C_OUTPUTS, C_REPAIRS, C_RESETS, C_UPDATES, N_SHARED_COUNTERS
+from estimators.core.recorder import (
+    C_GPS_RESETS,
+    C_OUTPUTS,
+    C_REPAIRS,
+    C_RESETS,
+    C_UPDATES,
+    C_WIND_INITS,
+    N_SHARED_COUNTERS,
+)
 from estimators.core.schedule import COVARIANCE, EVENT, PROPAGATE
 from estimators.indirect import model as m
 from estimators.indirect.measurements import measurement
@@ -198,6 +206,39 @@ def reset_to_gps(x, P, kind, values, variances, field, lever_b, gyro, sel, move_
 
 
 @njit(cache=True)
+def _body_x_ned(x):
+    """The body x axis in NED, ``R(q) e_x`` (first column of the attitude rotation)."""
+    qw, qx, qy, qz = x[m.X_Q], x[m.X_Q + 1], x[m.X_Q + 2], x[m.X_Q + 3]
+    return 1.0 - 2.0 * (qy * qy + qz * qz), 2.0 * (qx * qy + qw * qz), 2.0 * (qx * qz - qw * qy)
+
+
+@njit(cache=True)
+def initialise_wind(x, P, airspeed_m_s, aw, P0, block):
+    """Wind from the airspeed (docs/estimators.md, 'Wind initialisation'): the air flows along the body x axis at
+    the measured true airspeed, so the nominal horizontal wind is the NED velocity minus ``airspeed * R(q) e_x``
+    (north, east); its error covariance is the initial one, uncorrelated with the other error states.
+
+    ``aw``: active index of the wind error state ``E_W``; ``block`` (2, 2) scratch.
+    """
+    axis_n, axis_e, _ = _body_x_ned(x)
+    x[m.X_W] = x[m.X_V] - airspeed_m_s * axis_n
+    x[m.X_W + 1] = x[m.X_V + 1] - airspeed_m_s * axis_e
+    for c in range(2):
+        for d in range(2):
+            block[c, d] = P0[aw + c, aw + d]
+    linalg.reset_covariance_block(P, aw, block)
+
+
+@njit(cache=True)
+def air_flows_backwards(x) -> bool:
+    """The nominal air velocity ``v - wbar`` points backwards along the body x axis (the mirrored solution of
+    airspeed magnitude and sideslip)."""
+    axis_n, axis_e, axis_d = _body_x_ned(x)
+    return (axis_n * (x[m.X_V] - x[m.X_W]) + axis_e * (x[m.X_V + 1] - x[m.X_W + 1])
+            + axis_d * x[m.X_V + 2]) < 0.0
+
+
+@njit(cache=True)
 def healthy(x, P, zero_error):
     """Finite nominal state, and a finite covariance with positive variances (``linalg.is_healthy`` on the
     reset error state ``zero_error``)."""
@@ -320,9 +361,11 @@ def run_kernel(imu_gyro, imu_accel, ev_kind, ev_imu, ev_val, ev_var, op, op_dt, 
     gps_mon = reacquisition.gps_monitor()
     air_ok = False  # the last airspeed update was accepted (reset_to_gps)
     wind_active = False
+    aw = -1  # active index of the wind error state
     for a in range(s.sel.shape[0]):
         if s.sel[a] == m.E_W:
             wind_active = True
+            aw = a
     last_row = imu_gyro.shape[0] - 1
     n_out = 0
     for step in range(op.shape[0]):
@@ -359,6 +402,13 @@ def run_kernel(imu_gyro, imu_accel, ev_kind, ev_imu, ev_val, ev_var, op, op_dt, 
                     if counted:
                         counters[C_GPS_RESETS] += 1
                     continue
+            if kind == AIRSPEED and wind_active and (counters[C_WIND_INITS] == 0 or air_flows_backwards(x)):
+                # first airspeed of the flight, or a wind that has the aircraft flying backwards: no update can
+                # leave that mirrored solution (it fits airspeed and sideslip as well), so the wind starts again
+                initialise_wind(x, P, values[0], aw, s.P0, w.block3[:2, :2])
+                counters[C_WIND_INITS] += 1
+                air_ok = True
+                continue
             accepted = _update(x, P, t, kind, values, ev_var[j], gyro, s, w, gps_mon, diag_f, diag_i, counters)
             if kind == AIRSPEED:
                 air_ok = accepted
