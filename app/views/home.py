@@ -38,13 +38,14 @@ for warning in st.session_state.pop(UPLOAD_WARNINGS_KEY, ()):
     st.warning(warning)
 limit_mb = st.get_option("server.maxUploadSize")
 with st.form("upload", clear_on_submit=True):
-    ulog_file = st.file_uploader(f"PX4 ULog (.ulg, up to {limit_mb} MB)", type=["ulg"], key="upload_ulog")
+    ulog_file = st.file_uploader(f"PX4 ULog or ArduPilot DataFlash log (.ulg, .bin, up to {limit_mb} MB)",
+                                 type=["ulg", "bin"], key="upload_ulog")
     sun_file = st.file_uploader("Sun-device log (.csv, optional)", type=["csv"], key="upload_sun")
     device_file = st.file_uploader("Sun-device geometry (.json, optional)", type=["json"], key="upload_device")
     submitted = st.form_submit_button("Add to the workspace", type="primary")
 if submitted:
     if ulog_file is None:
-        st.warning("Choose a .ulg file first.")
+        st.warning("Choose a .ulg or .bin file first.")
     else:
         content = ulog_file.getvalue()
         sun_csv = sun_file.getvalue() if sun_file else None
