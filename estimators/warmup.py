@@ -229,9 +229,9 @@ def warm_up(report: Callable[[str], None] | None = None) -> float:
     start = time.perf_counter()
     if cache_state().stale:
         drop_package_caches()
-    from ingest.ulog_reader import _message_walk_end  # the ULog reader's one numba function
+    from ingest.ulog_reader import compile_kernels  # the ULog reader's numba functions
 
-    _message_walk_end(np.frombuffer(bytes(16), dtype=np.uint8), 16)  # the types the reader passes
+    compile_kernels()
     log = synthetic_flight()
     for name in DEFAULT_ESTIMATORS:
         t0 = time.perf_counter()

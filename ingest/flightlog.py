@@ -103,6 +103,8 @@ class LogMetadata:
         MAVLink MAV_TYPE (1 fixed wing, 2 quadrotor, 22 VTOL ...), from the ``MAV_TYPE`` parameter.
     hardware : str or None
         ``ver_hw`` of the log.
+    sys_uuid : str or None
+        ``sys_uuid`` of the log: the autopilot board's unique id (identifies a vehicle across its logs).
     px4_version : str or None
         Release tag (``ver_sw_release`` decoded) or git hash of the firmware.
     ver_data_format : int or None
@@ -127,6 +129,7 @@ class LogMetadata:
     sha256: str = ""
     vehicle_type: int | None = None
     hardware: str | None = None
+    sys_uuid: str | None = None
     px4_version: str | None = None
     ver_data_format: int | None = None
     start_time_s: float = float("nan")

@@ -61,11 +61,15 @@ MAX_FORMAT_DEPTH = 16
 MAX_TOTAL_STEPS = 131_072
 #: pyulog's basic field types and their sizes [bytes].
 BASIC_TYPE_BYTES = {name: spec[1] for name, spec in ULog._UNPACK_TYPES.items()}
-#: pyulog's private hooks the guard overrides; a pyulog release that renames one must fail loudly (a test
+#: pyulog's private hooks the guard overrides or uses; a pyulog release that renames one must fail loudly (a test
 #: checks they exist).
 PYULOG_HOOKS = ("_MessageAddLogged", "_MessageData", "_MessageInfo", "_MessageParameterDefault", "_MessageFlagBits",
                 "MessageLogging", "MessageLoggingTagged", "MessageDropout", "_read_file_definitions", "_load_file",
-                "_message_formats", "_compat_flags", "_incompat_flags", "_appended_offsets", "_file_corrupt")
+                "_message_formats", "_compat_flags", "_incompat_flags", "_appended_offsets", "_file_corrupt",
+                # and those ingest.ulog_fast.FastULog uses for its data passes
+                "_read_file_data", "_MessageHeader", "_subscriptions", "_filtered_message_ids", "_last_timestamp",
+                "_sync_seq_cnt", "_msg_info_dict_types", "_add_message_info_multiple", "_add_parameter_default",
+                "_changed_parameters", "_logged_messages", "_logged_messages_tagged", "_dropouts", "_data_list")
 
 
 class _BudgetExceeded(Exception):
@@ -87,6 +91,8 @@ class BudgetedStream(io.BytesIO):
 
     Attributes
     ----------
+    content : bytes
+        The file itself, for a reader that indexes it directly (:class:`ingest.ulog_fast.FastULog`).
     seeks, rewound, reads : int
         Used so far (reads: counted ones).
     closed_at : int or None
@@ -96,6 +102,7 @@ class BudgetedStream(io.BytesIO):
 
     def __init__(self, content: bytes):
         super().__init__(content)
+        self.content = content
         n_bytes = len(content)
         self.max_seeks = int(SEEKS_PER_BYTE * n_bytes) + SEEKS_FIXED
         self.max_rewind = REWIND_PER_BYTE * n_bytes + REWIND_FIXED
@@ -331,7 +338,8 @@ class GuardedULog(ULog):
         self._message_formats = dict(self._message_formats)  # a plain dict again for the caller
 
 
-def parse_ulog(content: bytes, name: str, topics: Iterable[str]) -> tuple[ULog, list[str]]:
+def parse_ulog(content: bytes, name: str, topics: Iterable[str], *,
+               reader: type[GuardedULog] = GuardedULog) -> tuple[ULog, list[str]]:
     """Parse ``content`` with pyulog under the guards, reading only ``topics``.
 
     Parameters
@@ -342,11 +350,13 @@ def parse_ulog(content: bytes, name: str, topics: Iterable[str]) -> tuple[ULog, 
         File name for messages.
     topics : iterable of str
         Topics to load.
+    reader : type, optional
+        :class:`GuardedULog` or a subclass (:class:`ingest.ulog_fast.FastULog`); its own exceptions pass through.
 
     Returns
     -------
     ulog : pyulog.ULog
-        The parsed log (a :class:`GuardedULog`).
+        The parsed log (a ``reader``).
     warnings : list of str
         Topics dropped for an unusable format and where pyulog stopped early, if it did.
 
@@ -363,7 +373,7 @@ def parse_ulog(content: bytes, name: str, topics: Iterable[str]) -> tuple[ULog, 
     guard = FormatGuard(topics)
     try:
         with contextlib.redirect_stdout(io.StringIO()):  # pyulog prints its corruption notes
-            ulog = GuardedULog(stream, guard)
+            ulog = reader(stream, guard)
     except _BudgetExceeded as exc:
         raise InputError(f"not a readable PX4 ULog file: the ULog parser cannot get past damaged messages ({exc}; "
                          f"the file has {n_bytes} bytes)", source=name) from None

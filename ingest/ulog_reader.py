@@ -2,7 +2,8 @@
 
 :func:`load_flight_log` takes a path, bytes or a binary file object (a Streamlit upload), parses only the
 topics listed in :mod:`ingest.px4_topics` with pyulog under the guards of :mod:`ingest.ulog_guard` (bounded time
-and memory on any file, docs/robustness.md, 'ULog reader guard'), and hands the result to
+and memory on any file, docs/robustness.md, 'ULog reader guard'), the data messages gathered by
+:mod:`ingest.ulog_fast` (docs/robustness.md, 'Fast data section'), and hands the result to
 :func:`flightlog_from_ulog`, which maps PX4 names and units to the canonical ones and cleans the time axis.
 Everything it works around is written to ``FlightLog.meta.warnings``; damage costs only the damaged part (a
 parameter, a topic, some rows) where it can be isolated.
@@ -58,7 +59,8 @@ from ingest.px4_topics import (
     TopicSpec,
 )
 from ingest.sources import Source, read_content
-from ingest.ulog_guard import parse_ulog
+from ingest.ulog_fast import compile_kernels as compile_fast_kernels
+from ingest.ulog_fast import read_ulog
 
 #: GPS fix_type below this has no position (0-1: no fix).
 MIN_POSITION_FIX_TYPE = 2
@@ -83,12 +85,13 @@ MAX_SAMPLE_LAG_S = 60.0
 
 
 def load_flight_log(path_or_bytes: Source, *, max_bytes: int | None = None, name: str | None = None) -> FlightLog:
-    """Read a PX4 ULog file into a :class:`FlightLog`.
+    """Read a PX4 ULog file (or an ArduPilot DataFlash ``.bin``, recognised by its content) into a
+    :class:`FlightLog`.
 
     Parameters
     ----------
     path_or_bytes : path, bytes or binary file object
-        The ``.ulg`` file or its content (a Streamlit upload is a binary file object).
+        The ``.ulg`` / ``.bin`` file or its content (a Streamlit upload is a binary file object).
     max_bytes : int, optional
         Refuse files larger than this [bytes] with :class:`~ingest.errors.FileTooLargeError`.
     name : str, optional
@@ -104,13 +107,17 @@ def load_flight_log(path_or_bytes: Source, *, max_bytes: int | None = None, name
     Raises
     ------
     InputError
-        The file cannot be read, is empty, is not a ULog, is damaged beyond what the reader can skip
-        (docs/robustness.md, 'ULog reader guard'), or has no usable IMU (``sensor_combined``) data.
+        The file cannot be read, is empty, is neither a ULog nor a DataFlash log, is damaged beyond what the
+        reader can skip (docs/robustness.md, 'ULog reader guard'), or has no usable IMU (``sensor_combined``) data.
     FileTooLargeError
         The file is larger than ``max_bytes``.
     """
+    from ingest.dataflash_reader import flightlog_from_dataflash, is_dataflash  # the one ArduPilot entry point
+
     content, name = read_content(path_or_bytes, name=name, max_bytes=max_bytes)
-    ulog, notes = parse_ulog(content, name, ALL_TOPICS)
+    if is_dataflash(content):  # by content, not by file name (docs/ingest.md, 'DataFlash')
+        return flightlog_from_dataflash(content, source=name)
+    ulog, notes = read_ulog(content, name, ALL_TOPICS)
     if not ulog.file_corruption:
         end = _message_walk_end(np.frombuffer(content, dtype=np.uint8), ULOG_HEADER_BYTES)
         if end != len(content):
@@ -182,6 +189,7 @@ def flightlog_from_ulog(ulog: ULog, *, source: str, sha256: str = "", notes: Seq
         sha256=sha256,
         vehicle_type=vehicle_type,
         hardware=info.get("ver_hw"),
+        sys_uuid=info.get("sys_uuid"),
         px4_version=firmware_version(ulog, info),
         ver_data_format=info.get("ver_data_format"),
         start_time_s=float(imu_time_s[0]),
@@ -209,6 +217,13 @@ def firmware_version(ulog: ULog, info: dict | None = None) -> str | None:
         return release
     major, minor, patch, _ = ulog.get_version_info()
     return f"v{major}.{minor}.{patch} dev" + (f" ({git_hash})" if git_hash else "")
+
+
+def compile_kernels() -> None:
+    """Compile (or load from numba's cache) the reader's numba kernels with the argument types a parse passes
+    (the set-up does it once, so that no first read pauses to compile)."""
+    _message_walk_end(np.frombuffer(bytes(ULOG_HEADER_BYTES), dtype=np.uint8), ULOG_HEADER_BYTES)
+    compile_fast_kernels()
 
 
 @njit(cache=True)
@@ -248,7 +263,7 @@ def _vehicle_type(raw: dict, parameters: dict[str, float], warnings: list[str]) 
 
 #: Info fields the reader uses and the types they must have.
 _INFO_TYPES: dict[str, tuple[type, ...]] = {"ver_hw": (str,), "ver_sw": (str,), "ver_sw_release": (int,),
-                                            "ver_data_format": (int,)}
+                                            "ver_data_format": (int,), "sys_uuid": (str,)}
 
 
 def _typed_info(ulog: ULog, warnings: list[str]) -> dict:
