@@ -43,13 +43,17 @@ def find_samples(directory: Path = SAMPLE_DIR) -> list[SampleLog]:
     """The bundled samples in ``directory``, sorted by file name (empty when the folder is missing)."""
     if not directory.is_dir():
         return []
+    return [with_companions(ulog) for ulog in sorted(directory.glob("*.ulg"))]
 
+
+def with_companions(ulog: Path) -> SampleLog:
+    """A log with the sun-device CSV and device JSON beside it named after its stem (``<stem>_sun.csv``,
+    ``<stem>_device.json``), each None when absent (the ``solarnav batch`` inputs follow the same rule)."""
     def companion(path: Path) -> Path | None:
         return path if path.is_file() else None
 
-    return [SampleLog(ulog, companion(ulog.with_name(f"{ulog.stem}_sun.csv")),
-                      companion(ulog.with_name(f"{ulog.stem}_device.json")))
-            for ulog in sorted(directory.glob("*.ulg"))]
+    return SampleLog(ulog, companion(ulog.with_name(f"{ulog.stem}_sun.csv")),
+                     companion(ulog.with_name(f"{ulog.stem}_device.json")))
 
 
 def add_samples(workspace: Workspace, samples: list[SampleLog] | None = None) -> list[LogEntry]:

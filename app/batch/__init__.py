@@ -1,0 +1,1 @@
+"""``solarnav batch``: many logs processed on a Dask cluster, their summary and per-vehicle history."""
