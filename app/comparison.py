@@ -6,6 +6,7 @@ NIS summaries of the measurement updates. Pure pandas / NumPy (no Streamlit), te
 from __future__ import annotations
 
 import io
+import json
 from collections.abc import Mapping
 from dataclasses import dataclass
 
@@ -25,6 +26,16 @@ QUANTITIES = {
     "airspeed_m_s": ("Airspeed (m/s)", "m/s"), "ground_speed_m_s": ("Ground Speed (m/s)", "m/s"),
     "course_deg": ("GPS Course (deg)", "deg"), "wind_m_s": ("Wind (m/s)", "m/s"),
 }
+#: The dashboard's state charts: title -> rows (column, axis title with unit), top to bottom.
+STATE_PANELS = {
+    "Attitude": [("roll_deg", "roll [deg]"), ("pitch_deg", "pitch [deg]"), ("yaw_deg", "yaw [deg]")],
+    "Altitude and speeds": [("alt_m", "altitude [m]"), ("ground_speed_m_s", "ground speed [m/s]"),
+                            ("course_deg", "course [deg]"), ("airspeed_m_s", "airspeed [m/s]")],
+    "Wind": [("wind_n_m_s", "wind north [m/s]"), ("wind_e_m_s", "wind east [m/s]")],
+}
+#: Rows of the error charts: every :data:`QUANTITIES` column, its error with the unit.
+ERROR_ROWS = [(column, f"{label.split(' (')[0].lower()} error [{unit}]")
+              for column, (label, unit) in QUANTITIES.items()]
 #: Angles: errors are wrapped to [-180, 180) deg.
 ANGLE_COLUMNS = ("roll_deg", "pitch_deg", "yaw_deg", "course_deg")
 #: Below this ground speed [m/s] the course is undefined (left NaN), as in the filters' course update.
@@ -310,6 +321,20 @@ def rms_comparison(rms_by_run: Mapping[str, pd.DataFrame], baseline: str,
                 rows.append((run, str(estimator), str(quantity), value, base, delta, percent,
                              change_verdict(percent, tolerance_pct)))
     return pd.DataFrame(rows, columns=list(RMS_COMPARISON_COLUMNS))
+
+
+def runs_with(stored: pd.DataFrame, estimator: str) -> list[str]:
+    """Ids of the stored runs (:meth:`app.workspace.Workspace.list_runs`, in its order) that ran ``estimator``."""
+    return [str(run_id) for run_id, text in zip(stored["run_id"], stored["settings_json"], strict=True)
+            if estimator in json.loads(text).get("estimators", [])]
+
+
+def log_rms_comparison(rms_by_log: Mapping[str, pd.DataFrame], estimator: str, baseline: str) -> pd.DataFrame:
+    """:func:`rms_comparison` of one estimator across logs: ``rms_by_log`` maps a log's label (``"<log> · <run>"``)
+    to its run's :func:`rms_table`; the rows of the other estimators are left out, a log whose run lacks the
+    estimator (or has no reference) contributes no row."""
+    return rms_comparison({label: table.loc[[estimator]] if estimator in table.index else table.iloc[:0]
+                           for label, table in rms_by_log.items()}, baseline)
 
 
 def nis_comparison(summaries: Mapping[str, pd.DataFrame]) -> pd.DataFrame:

@@ -21,8 +21,10 @@ pages = [
     st.Page("views/overview.py", title="Overview", icon=":material/flight:"),
     st.Page("views/calibration.py", title="Calibration", icon=":material/tune:"),
     st.Page("views/estimators.py", title="Estimators", icon=":material/compare_arrows:"),
+    st.Page("views/compare_logs.py", title="Compare logs", icon=":material/stacked_line_chart:"),
     st.Page("views/map.py", title="Map", icon=":material/map:"),
     st.Page("views/sun.py", title="Sun vector", icon=":material/wb_sunny:"),
     st.Page("views/workspace.py", title="Workspace", icon=":material/inventory_2:"),
+    st.Page("views/fleet.py", title="Fleet", icon=":material/dataset:"),
 ]
 st.navigation(pages).run()

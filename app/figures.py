@@ -225,6 +225,12 @@ def base_layout(fig: go.Figure, *, x_title: str = TIME_TITLE, y_title: str, heig
     return fig
 
 
+def _time_titles(fig: go.Figure, n_rows: int, time_base: TimeBase | None) -> None:
+    """Time axis title on the bottom row only."""
+    fig.update_xaxes(title_text="")
+    fig.update_xaxes(title_text=TIME_TITLE if time_base is not None else LOG_CLOCK_TITLE, row=n_rows, col=1)
+
+
 def time_series_figure(series: Mapping[str, pd.Series], y_title: str, *, title: str | None = None,
                        max_points: int = MAX_POINTS, time_base: TimeBase | None = None,
                        window: Sequence[float] | None = None, wrap: bool = False) -> go.Figure:
@@ -293,29 +299,33 @@ SEGMENT_COLORS = {"stationary": "rgba(44,160,44,0.15)", "steady": "rgba(31,119,1
 AXIS_COLORS = ("#1f77b4", "#ff7f0e", "#2ca02c", "#9467bd", "#8c564b", "#e377c2", "#17becf")
 
 
-def segment_figure(imu_norms: pd.DataFrame, segments: pd.DataFrame, max_points: int = MAX_POINTS) -> go.Figure:
+def segment_figure(imu_norms: pd.DataFrame, segments: pd.DataFrame, max_points: int = MAX_POINTS, *,
+                   time_base: TimeBase | None = None) -> go.Figure:
     """Gyro and specific-force (f) norms over the whole log with the candidate and chosen segments shaded; drag a
     box on it to pick a window.
 
     Parameters
     ----------
     imu_norms : pandas.DataFrame
-        Index ``time_s`` [s]; columns ``gyro_norm_rad_s`` [rad/s], ``accel_norm_m_s2`` [m/s^2].
+        Index ``time_s`` [s, log clock]; columns ``gyro_norm_rad_s`` [rad/s], ``accel_norm_m_s2`` [m/s^2].
     segments : pandas.DataFrame
-        Columns ``kind`` (stationary / steady / user), ``start_s``, ``end_s`` [s].
+        Columns ``kind`` (stationary / steady / user), ``start_s``, ``end_s`` [s, log clock].
+    time_base : TimeBase, optional
+        Draw over seconds since the log start (the log clock and UTC on hover); the log clock without one.
     """
     fig = make_subplots(rows=2, cols=1, shared_xaxes=True, vertical_spacing=0.06)
     time_s = imu_norms.index.to_numpy(float)
     for row, (column, name) in enumerate((("gyro_norm_rad_s", "|gyro|"), ("accel_norm_m_s2", "|f|")), start=1):
         fig.add_trace(line(time_s, imu_norms[column].to_numpy(float), name, max_points=max_points,
-                           color=AXIS_COLORS[row - 1]), row=row, col=1)
+                           color=AXIS_COLORS[row - 1], time_base=time_base), row=row, col=1)
+    offset = time_base.start_s if time_base is not None else 0.0
     for seg in segments.itertuples(index=False):
-        fig.add_vrect(x0=seg.start_s, x1=seg.end_s, fillcolor=SEGMENT_COLORS.get(seg.kind, "rgba(0,0,0,0.1)"),
+        fig.add_vrect(x0=seg.start_s - offset, x1=seg.end_s - offset,
+                      fillcolor=SEGMENT_COLORS.get(seg.kind, "rgba(0,0,0,0.1)"),
                       line_width=2 if seg.kind == "user" else 0, line_color="#d62728", layer="below")
     base_layout(fig, y_title="|gyro| [rad/s]", height=420, title="Calibration segment (drag a box to pick one)")
     fig.update_yaxes(title_text="|f| [m/s^2]", row=2, col=1)
-    fig.update_xaxes(title_text="", row=1, col=1)
-    fig.update_xaxes(title_text=LOG_CLOCK_TITLE, row=2, col=1)
+    _time_titles(fig, 2, time_base)
     fig.update_layout(dragmode="select", selectdirection="h", hovermode="closest")
     return fig
 
@@ -338,19 +348,19 @@ def frequency_response_figure(freq_hz: np.ndarray, gain_single: np.ndarray, gain
 
 
 def raw_filtered_figure(time_s: np.ndarray, raw: np.ndarray, filtered: np.ndarray, axes: tuple[str, ...],
-                        unit: str, max_points: int = MAX_POINTS) -> go.Figure:
-    """Raw samples and their zero-phase low-pass, one row per axis (``raw``, ``filtered``: shape (n, k))."""
+                        unit: str, max_points: int = MAX_POINTS, *, time_base: TimeBase | None = None) -> go.Figure:
+    """Raw samples and their zero-phase low-pass, one row per axis (``time_s``: log clock [s]; ``raw``,
+    ``filtered``: shape (n, k)); over seconds since the log start with a ``time_base``."""
     fig = make_subplots(rows=len(axes), cols=1, shared_xaxes=True, vertical_spacing=0.04)
     for k, axis in enumerate(axes):
         fig.add_trace(line(time_s, raw[:, k], f"{axis} raw", max_points=max_points, color="#aec7e8",
-                           legendgroup="raw"), row=k + 1, col=1)
+                           legendgroup="raw", time_base=time_base), row=k + 1, col=1)
         fig.add_trace(line(time_s, filtered[:, k], f"{axis} filtered", max_points=max_points, color="#1f77b4",
-                           legendgroup="filtered"), row=k + 1, col=1)
+                           legendgroup="filtered", time_base=time_base), row=k + 1, col=1)
     base_layout(fig, y_title="", height=120 + 150 * len(axes), title="Raw vs filtered")
     for k, axis in enumerate(axes):
         fig.update_yaxes(title_text=f"{axis} [{unit}]", row=k + 1, col=1)
-    fig.update_xaxes(title_text="")
-    fig.update_xaxes(title_text=LOG_CLOCK_TITLE, row=len(axes), col=1)
+    _time_titles(fig, len(axes), time_base)
     return fig
 
 
@@ -413,14 +423,8 @@ def tau_curve_figure(log10_tau_grid, neg_log_likelihood, mean_nis, chosen_tau: f
 REFERENCE_DASH = {"truth": "dash", "onboard": "dot"}
 
 
-def _time_titles(fig: go.Figure, n_rows: int, time_base: TimeBase | None) -> None:
-    """Time axis title on the bottom row only."""
-    fig.update_xaxes(title_text="")
-    fig.update_xaxes(title_text=TIME_TITLE if time_base is not None else LOG_CLOCK_TITLE, row=n_rows, col=1)
-
-
 def quantity_figure(frames: Mapping[str, pd.DataFrame], rows: Sequence[tuple[str, str]], *, title: str,
-                    max_points: int = MAX_POINTS, time_base: TimeBase | None = None,
+                    max_points: int = MAX_POINTS, time_base: TimeBase | Mapping[str, TimeBase] | None = None,
                     window: Sequence[float] | None = None,
                     angle_columns: Collection[str] = ANGLE_COLUMNS) -> go.Figure:
     """One row per quantity, one downsampled line per source (estimators, onboard, truth).
@@ -432,18 +436,20 @@ def quantity_figure(frames: Mapping[str, pd.DataFrame], rows: Sequence[tuple[str
     rows : sequence of (column, axis title with unit)
         Quantities to draw, top to bottom.
     time_base, window
-        Time axis (seconds since start) and the page's shared range [s since start].
+        Time axis (seconds since start; one time base per source when the sources come from several logs) and the
+        page's shared range [s since start].
     angle_columns : collection of str
         Columns of angles in [-180, 180) deg, broken at their wrap-arounds.
     """
     fig = make_subplots(rows=len(rows), cols=1, shared_xaxes=True, vertical_spacing=0.03)
     for source, frame in frames.items():
         time_s = frame["time_s"].to_numpy(float)
+        base = time_base.get(source) if isinstance(time_base, Mapping) else time_base
         for row, (column, _) in enumerate(rows, start=1):
             if column not in frame or not frame[column].notna().any():
                 continue
             trace = line(time_s, frame[column].to_numpy(float), source, max_points=max_points,
-                         time_base=time_base, window=window, wrap=column in angle_columns,
+                         time_base=base, window=window, wrap=column in angle_columns,
                          legendgroup=source, showlegend=not any(t.name == source for t in fig.data))
             trace.line.dash = REFERENCE_DASH.get(source)
             fig.add_trace(trace, row=row, col=1)
@@ -705,3 +711,49 @@ def overlay_nis_figure(per_run: Mapping[str, pd.DataFrame], estimator: str, wind
             trace.line.dash = dash
             fig.add_trace(trace)
     return _nis_frame(fig, band, window, title=title, time_base=time_base, time_window=time_window)
+
+
+# ---------------------------------------------------------------------------------------------------- log overlays
+@dataclass(frozen=True)
+class LogRun:
+    """One log's run in a cross-log overlay: its names, its time base and its frames (source -> frame with
+    ``time_s`` on that log's clock: an estimator's quantities or errors, and the references)."""
+
+    log_name: str
+    run_name: str
+    time_base: TimeBase
+    frames: Mapping[str, pd.DataFrame]
+
+    @property
+    def label(self) -> str:
+        """``"<log name> · <run name>"``: the log's row in the RMS comparison."""
+        return f"{self.log_name}{RUN_SEPARATOR}{self.run_name}"
+
+
+def overlay_log_sources(log_runs: Sequence[LogRun], estimator: str
+                        ) -> tuple[dict[str, pd.DataFrame], dict[str, TimeBase], dict[str, tuple[str, str]]]:
+    """The frames of one estimator in several logs for :func:`quantity_figure`: series
+    ``"<estimator> · <log name> · <run name>"`` and the log's references ``"<reference> · <log name>"``, each
+    log's series with its own time base (every log from its own start) and colour (:data:`AXIS_COLORS` in order;
+    the estimator solid, the references dashed as :data:`REFERENCE_DASH`)."""
+    frames: dict[str, pd.DataFrame] = {}
+    bases: dict[str, TimeBase] = {}
+    styles: dict[str, tuple[str, str]] = {}
+    for index, log_run in enumerate(log_runs):
+        color = AXIS_COLORS[index % len(AXIS_COLORS)]
+        named = [(f"{estimator}{RUN_SEPARATOR}{log_run.label}", estimator, "solid")]
+        named += [(f"{source}{RUN_SEPARATOR}{log_run.log_name}", source, REFERENCE_DASH.get(source, "solid"))
+                  for source in REFERENCE_SOURCES]
+        for name, source, dash in named:
+            if source in log_run.frames:
+                frames[name], bases[name], styles[name] = log_run.frames[source], log_run.time_base, (color, dash)
+    return frames, bases, styles
+
+
+def overlay_logs_figure(log_runs: Sequence[LogRun], estimator: str, rows: Sequence[tuple[str, str]], *, title: str,
+                        max_points: int = MAX_POINTS, window: Sequence[float] | None = None) -> go.Figure:
+    """:func:`quantity_figure` of one estimator across several logs (:func:`overlay_log_sources`), over seconds
+    since each log's start and the page's shared ``window`` [s]."""
+    frames, bases, styles = overlay_log_sources(log_runs, estimator)
+    fig = quantity_figure(frames, rows, title=title, max_points=max_points, time_base=bases, window=window)
+    return restyle(fig, styles)

@@ -13,11 +13,13 @@ import re
 import sys
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
+from functools import partial
 from pathlib import Path
 
+import plotly.graph_objects as go
 import streamlit as st
 
-from app import adapters
+from app import adapters, figures, time_range
 from app.workspace import LogEntry, Stored, Workspace
 from ingest import FlightLog, InputError
 
@@ -128,3 +130,30 @@ def save_calibration(sha256: str, settings: dict, calibration_json: str) -> Stor
     stored = workspace().store_calibration(sha256, settings, calibration_json)
     stored_message(stored, "calibration")
     return stored
+
+
+# ---------------------------------------------------------------------------------------------------- time range
+#: Plotly mode-bar buttons removed from the time charts: their zoom and pan would move one chart only.
+LOCAL_ZOOM_BUTTONS = ("zoom2d", "pan2d", "lasso2d", "zoomIn2d", "zoomOut2d", "autoScale2d")
+
+
+def time_range_slider(range_key: str, span: tuple[float, float], help_text: str) -> tuple[float, float]:
+    """The page's shared time range [s since start] (:mod:`app.time_range`): a slider keyed ``range_key`` over
+    ``span`` with a *Full span* button; a box dragged on any :func:`time_chart` of the page sets it too."""
+    st.session_state[range_key] = figures.clamp_window(st.session_state.get(range_key), span)
+    left, right = st.columns([6, 1], vertical_alignment="bottom")
+    right.button("Full span", key=f"{range_key}_reset", on_click=time_range.reset_range,
+                 args=(st.session_state, range_key, span), disabled=st.session_state[range_key] == span,
+                 help="Show the whole log again on every time chart of the page.")
+    return left.slider("Time range [s since log start]", *span, step=time_range.STEP_S, format="%.2f",
+                       key=range_key, help=f"{help_text} Drag across any time chart to zoom all of them to that "
+                                           "range; *Full span* resets it.")
+
+
+def time_chart(fig: go.Figure, key: str, range_key: str, span: tuple[float, float], container=st) -> None:
+    """Draw a time chart of the page (x: seconds since start) on which a horizontal box drag sets the page's
+    range ``range_key`` (:func:`app.time_range.take_box_selection`), so every chart of the page follows."""
+    fig.update_layout(dragmode="select", selectdirection="h")
+    container.plotly_chart(fig, key=key, selection_mode="box",
+                           on_select=partial(time_range.take_box_selection, st.session_state, key, range_key, span),
+                           config={"modeBarButtonsToRemove": list(LOCAL_ZOOM_BUTTONS), "displaylogo": False})

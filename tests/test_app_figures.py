@@ -91,7 +91,11 @@ def test_segment_figure_marks_segments_and_bounds_points():
     assert all(len(trace.x) <= figures.MAX_POINTS for trace in fig.data)
     assert len(fig.layout.shapes) == 2 * 2 and fig.layout.dragmode == "select"  # a band per segment and row
     assert fig.layout.yaxis.title.text == "|gyro| [rad/s]" and fig.layout.yaxis2.title.text.endswith("[m/s^2]")
-    assert fig.layout.xaxis2.title.text == figures.LOG_CLOCK_TITLE  # the Calibration page picks on the log clock
+    assert fig.layout.xaxis2.title.text == figures.LOG_CLOCK_TITLE  # without a time base: the log clock
+    clock = figures.TimeBase(start_s=float(series.index[0]))
+    since = figures.segment_figure(norms, segments, time_base=clock)
+    assert since.layout.xaxis2.title.text == figures.TIME_TITLE and min(since.data[0].x) == 0.0
+    assert (since.layout.shapes[0].x0, since.layout.shapes[0].x1) == (100.0 - clock.start_s, 400.0 - clock.start_s)
 
 
 def test_frequency_response_and_raw_filtered_figures():
@@ -105,6 +109,9 @@ def test_frequency_response_and_raw_filtered_figures():
     raw = np.random.default_rng(2).normal(size=(len(time_s), 3))
     fig = figures.raw_filtered_figure(time_s, raw, raw * 0.1, ("x", "y", "z"), "rad/s")
     assert len(fig.data) == 6 and all(len(trace.x) <= figures.MAX_POINTS for trace in fig.data)
+    since = figures.raw_filtered_figure(time_s + 50.0, raw, raw, ("x", "y", "z"), "rad/s",
+                                        time_base=figures.TimeBase(start_s=50.0))
+    assert since.layout.xaxis3.title.text == figures.TIME_TITLE and min(since.data[0].x) == 0.0
     assert [fig.layout[f"yaxis{k or ''}"].title.text for k in (0, 2, 3)] == ["x [rad/s]", "y [rad/s]", "z [rad/s]"]
 
 

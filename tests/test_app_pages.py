@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 from streamlit.testing.v1 import AppTest
 
-from app import samples, session
+from app import adapters, samples, session
 from app.workspace import Workspace
 from tests.conftest import REPO_DIR
 
@@ -123,6 +123,12 @@ def test_calibration_tables_tau_and_window(open_page):
     assert not at.exception
     [noise] = _frames(at, lambda v: "segment_end_s" in v.columns)
     assert noise["segment_end_s"].max() == pytest.approx(low + 0.6 * (high - low), abs=0.05)
+    assert at.slider(key="calib_window").min == 0.0  # seconds since the log start; stored on the log clock:
+    at.button(key="calib_save").click().run()
+    log_start_s = adapters.stored_log(session.root(), at.sidebar.selectbox[0].value).meta.start_time_s
+    stored = Workspace(session.root()).list_calibrations(at.sidebar.selectbox[0].value)
+    window_s = json.loads(stored["settings_json"].iloc[0])["window_s"]
+    assert window_s == pytest.approx([log_start_s + low, log_start_s + low + 0.6 * (high - low)], abs=0.06)
     assert {button.label for button in at.get("download_button")} == {"Download CALIB.json",
                                                                        "Download PX4 .params"}
 
@@ -139,6 +145,9 @@ def test_estimators_run_compare_and_diagnose(open_page, workspace_dir):
     assert not at.exception and not at.error
     sha256 = at.sidebar.selectbox[0].value
     assert len(Workspace(workspace_dir).list_runs(sha256)) == 1
+    [timings] = [caption.value for caption in at.caption if caption.value.startswith("Run ")]
+    assert all(f"{stage} " in timings for stage in ("preparing inputs", "running three_stage",
+                                                    "running full_state_indirect", "computing diagnostics", "saving"))
     [rms] = [table.value for table in at.table if "Roll Angle (deg)" in table.value.columns]
     assert list(rms.index) == ["three_stage", "full_state_direct", "full_state_indirect"]
     assert list(rms.columns)[-1] == "Wind (m/s)" and rms["Yaw Angle (deg)"].notna().all()

@@ -163,6 +163,33 @@ def _same_window(plot: dict, window: tuple[float, float], tolerance: float = 0.0
                                               for a, b in zip(plot["xrange"], window, strict=True))
 
 
+#: Viewport rectangle of the main plot area of the chart whose title starts with the argument (scrolled into view).
+PLOT_AREA_JS = """title => {
+    const gd = [...document.querySelectorAll('.js-plotly-plot')].find(gd => {
+        const t = gd.layout && gd.layout.title;
+        return String(t ? (typeof t === 'string' ? t : t.text || '') : '').replace(/<[^>]*>/g, '').startsWith(title);
+    });
+    const area = gd && gd.querySelector('.nsewdrag');
+    if (!area) return null;
+    area.scrollIntoView({block: 'center'});
+    const box = area.getBoundingClientRect();
+    return {x: box.x, y: box.y, width: box.width, height: box.height};
+}"""
+
+
+def _drag_box(page, title: str, start: float, end: float) -> None:
+    """Drag a horizontal box across the chart titled ``title``, from ``start`` to ``end`` (shares of the plot
+    width), as a user selecting a time range does; then let the page settle."""
+    area = page.evaluate(PLOT_AREA_JS, title)
+    assert area is not None, f"no chart {title!r}"
+    y = area["y"] + 0.5 * area["height"]
+    page.mouse.move(area["x"] + start * area["width"], y)
+    page.mouse.down()
+    page.mouse.move(area["x"] + end * area["width"], y, steps=12)
+    page.mouse.up()
+    _settle(page)
+
+
 def _open(page, title: str) -> None:
     page.locator("[data-testid='stSidebarNav'] a", has_text=title).first.click()
     page.locator("[data-testid='stMain'] h1", has_text=title).wait_for()
@@ -192,6 +219,8 @@ def test_upload_run_and_compare_in_a_browser(page):
     _screenshot(page, "overview")
     _open(page, "Calibration")
     page.get_by_role("heading", name="Results").wait_for()
+    segment = _plot(page, "Calibration segment", lambda plot: plot["xmin"] is not None)
+    assert 0 <= segment["xmin"] < 5, segment["xmin"]  # seconds since the log start, as on the other pages
     _screenshot(page, "calibration")
 
     # one run: default settings (all estimators, magnetometer heading, default R)
@@ -252,6 +281,21 @@ def test_upload_run_and_compare_in_a_browser(page):
         assert _same_window(plot, zoomed), (plot["title"], plot["xrange"], zoomed)
     _screenshot(page, "estimators_zoomed_innovations")
 
+    # zoom one, all follow: a box dragged across the innovations chart is the range of the NIS chart too
+    width = zoomed[1] - zoomed[0]
+    expected = (zoomed[0] + 0.3 * width, zoomed[0] + 0.6 * width)
+    _drag_box(page, innovations["title"], 0.3, 0.6)
+    nis = _plot(page, nis["title"], lambda plot: _same_window(plot, expected, 0.05 * width))
+    innovations = _plot(page, innovations["title"], lambda plot: _same_window(plot, tuple(nis["xrange"])))
+    assert nis["xrange"][1] - nis["xrange"][0] < 0.5 * width, (nis["xrange"], zoomed)
+    low, high = (float(thumbs.nth(k).get_attribute("aria-valuetext")) for k in (0, 1))  # the page's range moved
+    assert (low, high) == pytest.approx(tuple(nis["xrange"]), abs=0.011), ((low, high), nis["xrange"])
+    _screenshot(page, "estimators_box_zoom_followed")
+    page.get_by_role("button", name="Full span").click()
+    _settle(page)
+    _plot(page, nis["title"], lambda plot: _same_window(plot, full, 0.01 * span))
+    _screenshot(page, "estimators_full_span_again")
+
     # the map: GPS and the estimators of the baseline run on a plotly map
     _open(page, "Map")
     page.get_by_role("heading", name="Local NED").wait_for()
@@ -260,6 +304,10 @@ def test_upload_run_and_compare_in_a_browser(page):
     assert page.locator(".js-plotly-plot .maplibregl-canvas").count() == 1  # MapLibre drew it
     assert "GPS" in drawn and drawn & set(ESTIMATORS), drawn
     _screenshot(page, "map")
+
+    _open(page, "Compare logs")  # one log with runs only: the page says what it needs
+    page.get_by_text("Fewer than two logs").wait_for()
+    _screenshot(page, "compare_logs")
 
     _open(page, "Sun vector")
     assert page.locator("[data-testid='stMetric']").filter(has_text="Most often faulty").count() == 1

@@ -8,7 +8,7 @@ import numpy as np
 import pandas as pd
 import streamlit as st
 
-from app import adapters, figures, session, tables
+from app import adapters, figures, session, tables, time_range
 from calib.calibration import SENSORS
 from calib.export import calibration_to_dict
 from calib.fir import frequency_response
@@ -18,9 +18,12 @@ from calib.tau import TAU_METHODS
 TAU_CHOICES = (0.1, 0.2, 0.5, 1.0, 2.0, 5.0, 10.0, 20.0, 50.0, 100.0)
 TAU_MODE_LABELS = {"manual": "by hand", "likelihood": "auto: likelihood", "nis": "auto: mean NIS = 1"}
 WINDOW_KEY = "calib_window"
+#: Step of the window slider [s].
+WINDOW_STEP_S = 0.1
 
 log = session.require_log()
 root, sha256 = session.root(), session.selected_sha256()
+clock = figures.time_base(log)
 st.title(f"Calibration: {log.meta.source}")
 
 # ------------------------------------------------------------------ segment
@@ -32,30 +35,35 @@ automatic = st.radio("Segment", ["automatic", "window"], horizontal=True, key="c
 if automatic and candidates.empty:
     st.warning("No stationary or steady segment was found automatically: pick a window.")
     automatic = False
-span = (float(log.meta.start_time_s), float(log.meta.end_time_s))
+span = figures.time_span(log)  # [s since start]
 
 
 def take_box_selection() -> None:
-    """Chart callback: a box dragged on the segment chart becomes the window."""
-    boxes = st.session_state["calib_segment_chart"].selection.get("box", [])
-    if boxes:
-        low, high = sorted(float(x) for x in boxes[0]["x"][:2])
-        st.session_state[WINDOW_KEY] = (max(low, span[0]), min(high, span[1]))
+    """Chart callback: a box dragged on the segment chart (seconds since start) becomes the window."""
+    chosen = time_range.selected_window(st.session_state["calib_segment_chart"], span, step_s=WINDOW_STEP_S)
+    if chosen is not None:
+        st.session_state[WINDOW_KEY] = chosen
         st.session_state["calib_mode"] = "window"
 
 
+# the page shows seconds since the log start; the calibration gets and stores the window on the log clock
 window = None
+if WINDOW_KEY in st.session_state:  # a window of another log, kept in the session, brought inside this one
+    kept = tuple(st.session_state[WINDOW_KEY])
+    if figures.clamp_window(kept, span) != kept:
+        st.session_state[WINDOW_KEY] = figures.clamp_window(kept, span)
 if not automatic:
-    default = tuple(candidates[["start_s", "end_s"]].iloc[0]) if len(candidates) else span
-    window = st.slider("Window [s] (log clock)", span[0], span[1], value=default, step=0.1, key=WINDOW_KEY,
-                       format="%.1f")
+    default = tuple(clock.since_start(candidates[["start_s", "end_s"]].iloc[0])) if len(candidates) else span
+    shown_window = st.slider("Window [s since log start]", span[0], span[1], value=default, step=WINDOW_STEP_S,
+                             key=WINDOW_KEY, format="%.1f", help="drag a box across the chart below to pick it")
+    window = (clock.start_s + shown_window[0], clock.start_s + shown_window[1])
 shaded = candidates if window is None else pd.DataFrame([("user", *window, "window")], columns=candidates.columns)
-st.plotly_chart(figures.segment_figure(adapters.imu_norms(root, sha256), shaded), key="calib_segment_chart",
-                on_select=take_box_selection, selection_mode="box")
+st.plotly_chart(figures.segment_figure(adapters.imu_norms(root, sha256), shaded, time_base=clock),
+                key="calib_segment_chart", on_select=take_box_selection, selection_mode="box")
 if automatic:
-    st.dataframe(candidates, hide_index=True, width="stretch", column_config={
-        "start_s": st.column_config.NumberColumn("start [s]", format="%.1f"),
-        "end_s": st.column_config.NumberColumn("end [s]", format="%.1f")})
+    st.dataframe(clock.shift(candidates, ["start_s", "end_s"]), hide_index=True, width="stretch", column_config={
+        "start_s": st.column_config.NumberColumn("start [s since start]", format="%.1f"),
+        "end_s": st.column_config.NumberColumn("end [s since start]", format="%.1f")})
 
 # ------------------------------------------------------------------ filter settings and calibration
 st.subheader("Filters and noise")
@@ -103,12 +111,15 @@ def results() -> None:
                    "stream's rate), its robust variant, and the physically referenced bias on a stationary segment. "
                    "Gyroscope figures are shown in deg/s on this page, as in the paper (CALIB.json and the .params "
                    "file are in SI: rad/s).")
-        st.dataframe(tables.display_noise_table(noise_table(base).reset_index()), hide_index=True,
+        st.dataframe(clock.shift(tables.display_noise_table(noise_table(base).reset_index()),
+                                 ["segment_start_s", "segment_end_s"]), hide_index=True,
                      key="calib_all_sensors", width="stretch", column_config={
                          "rate_hz": st.column_config.NumberColumn("rate [Hz]", format="%.1f"),
                          "cutoff_hz": st.column_config.NumberColumn("cutoff [Hz]", format="%.3g"),
-                         "segment_start_s": st.column_config.NumberColumn("segment start [s]", format="%.1f"),
-                         "segment_end_s": st.column_config.NumberColumn("segment end [s]", format="%.1f")})
+                         "segment_start_s": st.column_config.NumberColumn("segment start [s since start]",
+                                                                          format="%.1f"),
+                         "segment_end_s": st.column_config.NumberColumn("segment end [s since start]",
+                                                                        format="%.1f")})
     elif section == SECTIONS[1]:
         sensor = st.selectbox("Sensor", list(base.sensors), key="calib_sensor")
         cal = base.sensors[sensor]
@@ -118,7 +129,7 @@ def results() -> None:
         time_s, raw, filtered = adapters.raw_and_filtered(root, sha256, sensor, (cal.segment.start_s,
                                                                                  cal.segment.end_s),
                                                           cal.fir.fs_hz, cal.fir.cutoff_hz, cal.fir.numtaps)
-        st.plotly_chart(figures.raw_filtered_figure(time_s, raw, filtered, cal.axes, cal.unit))
+        st.plotly_chart(figures.raw_filtered_figure(time_s, raw, filtered, cal.axes, cal.unit, time_base=clock))
         for warning in cal.warnings:
             st.info(f"{sensor}: {warning}")
     elif section == SECTIONS[2]:

@@ -16,6 +16,8 @@ BASELINE_KEY = "est_baseline"
 #: Most runs overlaid at once (the comparisons of that many stay cached: adapters.run_comparison).
 MAX_RUNS = 4
 RANGE_KEY = "est_time_range"
+#: (run id, measured stages) of the last run made on this page.
+TIMINGS_KEY = "est_last_run_timings"
 HEADING_LABELS = {"mag": "magnetometer", "sun": "sun vector", "mag+sun": "both"}
 
 log = session.require_log()
@@ -58,11 +60,16 @@ if submitted:
     run_id = runs.find_run(workspace, sha256, settings)
     if run_id is None:
         bar = st.progress(0.0, text="Preparing ...")
+        stage_clock = runs.StageClock(lambda fraction, text: bar.progress(fraction, text=text),
+                                      runs.STAGES_PER_ESTIMATOR * len(settings.estimators) + 2
+                                      + (noise != runs.DEFAULT_NOISE))
         with session.input_errors():
+            if noise != runs.DEFAULT_NOISE:
+                stage_clock.start("calibrating", "Calibrating the sensors for R ...")
             calibration = adapters.run_calibration(root, sha256, noise)
-            run_id = runs.replay_and_store(workspace, sha256, log, settings, calibration,
-                                           progress=lambda fraction, text: bar.progress(fraction, text=text))
+            run_id = runs.replay_and_store(workspace, sha256, log, settings, calibration, clock=stage_clock)
         bar.empty()
+        st.session_state[TIMINGS_KEY] = (run_id, stage_clock.summary())
         st.toast(f"Run {run_id} stored in the workspace.")
     else:
         st.info("A run with these settings is stored already: showing it.")
@@ -70,6 +77,9 @@ if submitted:
     st.session_state[RUNS_KEY] = (selection if run_id in selection else [*selection, run_id])[-MAX_RUNS:]
 
 stored = workspace.list_runs(sha256)
+timed_run, timings = st.session_state.get(TIMINGS_KEY, (None, ""))
+if timed_run in set(stored["run_id"]):  # where the last run's time went, measured
+    st.caption(f"Run {comparison.run_names(stored)[timed_run]} took {timings}.")
 if stored.empty:
     st.info("No estimator run for this log yet: choose the settings above and press **Run estimators**.")
     st.stop()
@@ -158,15 +168,15 @@ else:
                          column_config={c: st.column_config.NumberColumn(c, format="%.3f")
                                         for c in ("RMS", "baseline RMS", "delta", "delta [%]")})
 
-PANELS = {
-    "Attitude": [("roll_deg", "roll [deg]"), ("pitch_deg", "pitch [deg]"), ("yaw_deg", "yaw [deg]")],
-    "Altitude and speeds": [("alt_m", "altitude [m]"), ("ground_speed_m_s", "ground speed [m/s]"),
-                            ("course_deg", "course [deg]"), ("airspeed_m_s", "airspeed [m/s]")],
-    "Wind": [("wind_n_m_s", "wind north [m/s]"), ("wind_e_m_s", "wind east [m/s]")],
-}
+PANELS = comparison.STATE_PANELS
+ERROR_ROWS = comparison.ERROR_ROWS
 INNOVATIONS = "Innovations and NIS"
-ERROR_ROWS = [(column, f"{label.split(' (')[0].lower()} error [{unit}]")
-              for column, (label, unit) in comparison.QUANTITIES.items()]
+span = figures.time_span(log)
+
+
+def time_chart(fig, key: str) -> None:
+    """A time chart of the page: a box dragged across it sets the page's range (every chart follows)."""
+    session.time_chart(fig, key, RANGE_KEY, span)
 
 
 @st.fragment
@@ -175,11 +185,9 @@ def comparison_plots() -> None:
     (only the view shown is computed; reruns alone on a change). Several selected runs are overlaid."""
     panel = st.segmented_control("Show", [*PANELS, "Track", "Errors", INNOVATIONS], default="Attitude",
                                  key="est_panel")
-    span = figures.time_span(log)
-    st.session_state[RANGE_KEY] = figures.clamp_window(st.session_state.get(RANGE_KEY), span)
-    window = st.slider("Time range [s since log start]", *span, step=0.01, format="%.2f", key=RANGE_KEY,
-                       help="Every time chart below shows this range, with the samples in it at full resolution "
-                            "and the y axes fitted to them (the track: the part flown in it).")
+    window = session.time_range_slider(RANGE_KEY, span, "Every time chart below shows this range, with the "
+                                       "samples in it at full resolution and the y axes fitted to them (the track: "
+                                       "the part flown in it).")
     if panel == INNOVATIONS:
         (innovation_overlays if multi else innovation_plots)(window)
     elif panel == "Track":
@@ -196,20 +204,19 @@ def comparison_plots() -> None:
         if not result.errors:
             st.info("No reference to compute errors against.")
         elif multi:
-            st.plotly_chart(figures.overlay_quantity_figure(
+            time_chart(figures.overlay_quantity_figure(
                 {name: run.errors for name, run in results.items()}, ERROR_ROWS,
-                title=f"Errors against the {result.reference}", time_base=clock, window=window), key="est_errors")
+                title=f"Errors against the {result.reference}", time_base=clock, window=window), "est_errors")
         else:
-            st.plotly_chart(figures.quantity_figure(result.errors, ERROR_ROWS,
-                                                    title=f"Errors against the {result.reference}",
-                                                    time_base=clock, window=window), key="est_errors")
+            time_chart(figures.quantity_figure(result.errors, ERROR_ROWS, title=f"Errors against the "
+                                               f"{result.reference}", time_base=clock, window=window), "est_errors")
     elif panel is not None and multi:
-        st.plotly_chart(figures.overlay_quantity_figure({name: run.quantities for name, run in results.items()},
-                                                        PANELS[panel], title=panel, time_base=clock, window=window),
-                        key="est_states")
+        time_chart(figures.overlay_quantity_figure({name: run.quantities for name, run in results.items()},
+                                                   PANELS[panel], title=panel, time_base=clock, window=window),
+                   "est_states")
     elif panel is not None:
-        st.plotly_chart(figures.quantity_figure(result.quantities, PANELS[panel], title=panel, time_base=clock,
-                                                window=window), key="est_states")
+        time_chart(figures.quantity_figure(result.quantities, PANELS[panel], title=panel, time_base=clock,
+                                           window=window), "est_states")
 
 
 def nis_table_and_choice(table: pd.DataFrame, estimators: list[str]) -> tuple[str, str | None, int]:
@@ -234,12 +241,11 @@ def innovation_plots(window: tuple[float, float]) -> None:
         return
     rows = adapters.sensor_diagnostics(root, run_id, estimator, sensor)
     units = {str(c): comparison.innovation_unit(sensor, str(c)) for c in rows["component"].unique()}
-    st.plotly_chart(figures.innovation_figure(rows, units, title=f"{estimator}: {sensor} innovations",
-                                              time_base=clock, window=window), key="est_innovations")
-    st.plotly_chart(figures.nis_figure(adapters.moving_nis(root, run_id, estimator, sensor, nis_window),
-                                       nis_window, comparison.nis_band(nis_window),
-                                       title=f"{estimator}: {sensor} NIS", time_base=clock, time_window=window),
-                    key="est_nis")
+    time_chart(figures.innovation_figure(rows, units, title=f"{estimator}: {sensor} innovations",
+                                         time_base=clock, window=window), "est_innovations")
+    time_chart(figures.nis_figure(adapters.moving_nis(root, run_id, estimator, sensor, nis_window),
+                                  nis_window, comparison.nis_band(nis_window),
+                                  title=f"{estimator}: {sensor} NIS", time_base=clock, time_window=window), "est_nis")
 
 
 def innovation_overlays(window: tuple[float, float]) -> None:
@@ -256,13 +262,12 @@ def innovation_overlays(window: tuple[float, float]) -> None:
     rows = {name: frame for name, frame in rows.items() if len(frame)}
     units = {str(c): comparison.innovation_unit(sensor, str(c)) for frame in rows.values()
              for c in frame["component"].unique()}
-    st.plotly_chart(figures.overlay_innovation_figure(rows, estimator, units,
-                                                      title=f"{estimator}: {sensor} innovations",
-                                                      time_base=clock, window=window), key="est_innovations")
+    time_chart(figures.overlay_innovation_figure(rows, estimator, units, title=f"{estimator}: {sensor} innovations",
+                                                 time_base=clock, window=window), "est_innovations")
     moving = {name: adapters.moving_nis(root, shown[name], estimator, sensor, nis_window) for name in rows}
-    st.plotly_chart(figures.overlay_nis_figure(moving, estimator, nis_window, comparison.nis_band(nis_window),
-                                               title=f"{estimator}: {sensor} NIS", time_base=clock,
-                                               time_window=window), key="est_nis")
+    time_chart(figures.overlay_nis_figure(moving, estimator, nis_window, comparison.nis_band(nis_window),
+                                          title=f"{estimator}: {sensor} NIS", time_base=clock, time_window=window),
+               "est_nis")
 
 
 st.subheader("Comparison")

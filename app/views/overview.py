@@ -52,15 +52,6 @@ st.dataframe(clock.shift(tables.streams_table(meta), ["longest_gap_at_s"]), hide
 })
 
 
-def time_range_slider() -> tuple[float, float]:
-    """The page's shared time range [s since start]: every time chart shows it, sliced at full resolution."""
-    span = figures.time_span(log)
-    st.session_state[RANGE_KEY] = figures.clamp_window(st.session_state.get(RANGE_KEY), span)
-    return st.slider("Time range [s since log start]", *span, step=0.01, format="%.2f", key=RANGE_KEY,
-                     help="Every time chart of the page shows this range (the track only the part flown in it), "
-                          "with the samples in it at full resolution and the y axes fitted to them.")
-
-
 @st.fragment
 def flight_plots() -> None:
     """Track and altitude with their display options (reruns alone when an option changes)."""
@@ -74,15 +65,18 @@ def flight_plots() -> None:
     shown = st.multiselect("Sources", sources, default=sources, key="overview_sources")
     show_phases = st.toggle("Shade flight phases", value=True, key="overview_phases")
     phases = adapters.flight_phases(root, sha256)
-    window = time_range_slider()
+    span = figures.time_span(log)
+    window = session.time_range_slider(RANGE_KEY, span, "Every time chart of the page shows this range (the track "
+                                       "only the part flown in it), with the samples in it at full resolution and "
+                                       "the y axes fitted to them.")
     left, right = st.columns([2, 3])
     if "GPS" not in tracks:
         left.info("No GPS fix: the track is the onboard local position about PX4's own origin.")
     left.plotly_chart(figures.track_figure({k: v for k, v in tracks.items() if k in shown}, time_base=clock,
                                            window=window), key="track")
-    right.plotly_chart(figures.altitude_figure({k: v for k, v in altitudes.items() if k in shown},
+    session.time_chart(figures.altitude_figure({k: v for k, v in altitudes.items() if k in shown},
                                                phases if show_phases else None, time_base=clock, window=window),
-                       key="altitude")
+                       "altitude", RANGE_KEY, span, container=right)
     baro_note = tables.baro_gps_altitude_note(altitudes, log.meta.parameters.get("SENS_BARO_QNH"))
     if baro_note:
         right.caption(baro_note)

@@ -42,15 +42,20 @@ faulty_share = (states == sun_compare.CELL_FAULTY).mean(axis=0)
 columns[3].metric("Most often faulty", f"cell {int(np.argmax(faulty_share)) + 1}" if faulty_share.any() else "none")
 
 span = figures.time_span(log)
-st.session_state[RANGE_KEY] = figures.clamp_window(st.session_state.get(RANGE_KEY), span)
-window = st.slider("Time range [s since log start]", *span, step=0.01, format="%.2f", key=RANGE_KEY,
-                   help="Every time chart of the page shows this range, with the samples in it at full resolution "
-                        "and the y axes fitted to them.")
+window = session.time_range_slider(RANGE_KEY, span, "Every time chart of the page shows this range, with the "
+                                   "samples in it at full resolution and the y axes fitted to them.")
+
+
+def time_chart(fig, key: str) -> None:
+    """A time chart of the page: a box dragged across it sets the page's range (every chart follows)."""
+    session.time_chart(fig, key, RANGE_KEY, span)
+
+
 currents_ma = {f"cell {k + 1}": log["sun"][column] * 1e3 for k, column in enumerate(log["sun"].columns)}
-st.plotly_chart(figures.time_series_figure(currents_ma, "current [mA]", title="Photocell currents", time_base=clock,
-                                           window=window), key="currents")
-st.plotly_chart(figures.cell_state_figure(solution["time_s"].to_numpy(), states, sun_compare.CELL_STATE_NAMES,
-                                          time_base=clock, window=window), key="cells")
+time_chart(figures.time_series_figure(currents_ma, "current [mA]", title="Photocell currents", time_base=clock,
+                                      window=window), "currents")
+time_chart(figures.cell_state_figure(solution["time_s"].to_numpy(), states, sun_compare.CELL_STATE_NAMES,
+                                     time_base=clock, window=window), "cells")
 st.dataframe(pd.DataFrame({"cell": [f"cell {k + 1}" for k in range(states.shape[1])],
                            "lit [%]": 100 * (states == sun_compare.CELL_LIT).mean(axis=0),
                            "faulty [%]": 100 * faulty_share}).set_index("cell").T.round(1), key="cell_shares")
@@ -72,15 +77,14 @@ else:
     for label, prefix in (("sun device", "sun"), (source, f"pred_{source}")):
         azimuth, elevation = sun_compare.body_angles_deg(solution[[f"{prefix}_{a}" for a in "xyz"]].to_numpy(float))
         frames[label] = pd.DataFrame({"time_s": time_s, "azimuth_deg": azimuth, "elevation_deg": elevation})
-    st.plotly_chart(figures.quantity_figure(
+    time_chart(figures.quantity_figure(
         frames, [("azimuth_deg", "azimuth [deg]"), ("elevation_deg", "elevation [deg]")],
         title=f"Body-frame sun direction: photocells vs ephemeris + {source} attitude", time_base=clock,
-        window=window), key="sun_angles")
+        window=window), "sun_angles")
     error = solution.set_index("time_s")[f"angle_{source}_deg"].dropna()
     columns = st.columns(3)
     columns[0].metric("Median angle error", f"{error.median():.2f} deg")
     columns[1].metric("95th percentile", f"{error.quantile(0.95):.2f} deg")
     columns[2].metric("RMS", f"{np.sqrt((error**2).mean()):.2f} deg")
-    st.plotly_chart(figures.time_series_figure({"sun device": error}, "angle to the prediction [deg]",
-                                               title="Angular error", time_base=clock, window=window),
-                    key="sun_error")
+    time_chart(figures.time_series_figure({"sun device": error}, "angle to the prediction [deg]",
+                                          title="Angular error", time_base=clock, window=window), "sun_error")

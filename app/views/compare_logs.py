@@ -1,0 +1,96 @@
+"""Compare logs: the same estimator across several logs of the workspace, each with one of its stored runs:
+attitude, errors and wind overlaid over the time since each log's start, and the RMS table of every log with its
+difference to a baseline log."""
+
+import streamlit as st
+
+from app import adapters, comparison, figures, session, tables
+from estimators.api import ESTIMATORS
+
+#: Most logs overlaid at once (the parsed logs and comparisons of that many stay cached: app.adapters).
+MAX_LOGS = 4
+ESTIMATOR_KEY, LOGS_KEY, BASELINE_KEY, PANEL_KEY, RANGE_KEY = (
+    "cmp_estimator", "cmp_logs", "cmp_baseline", "cmp_panel", "cmp_time_range")
+CHARTS = {"Attitude": comparison.STATE_PANELS["Attitude"], "Errors": comparison.ERROR_ROWS,
+          "Wind": comparison.STATE_PANELS["Wind"]}
+
+root = session.root()
+workspace = session.workspace()
+st.title("Compare logs")
+st.caption("One estimator across several logs, each with one of its stored runs: every chart starts each log at its "
+           "own first IMU sample (time since log start), and the RMS table compares each log with a baseline log.")
+
+estimator = st.selectbox("Estimator", list(ESTIMATORS), key=ESTIMATOR_KEY)
+entries = {entry.sha256: entry for entry in workspace.list_logs()}
+stored = {sha256: workspace.list_runs(sha256) for sha256 in entries}
+with_runs = {sha256: comparison.runs_with(runs, estimator) for sha256, runs in stored.items()}
+candidates = [sha256 for sha256, run_ids in with_runs.items() if run_ids]
+if len(candidates) < 2:
+    st.info(f"Fewer than two logs of the workspace have a stored run of {estimator}: run it on more logs on the "
+            "**Estimators** page (or `solarnav replay`) to compare them.")
+    st.stop()
+log_names = {sha256: f"{entries[sha256].display_name} ({sha256[:8]})" for sha256 in candidates}
+kept = [sha256 for sha256 in st.session_state.get(LOGS_KEY, []) if sha256 in log_names]
+if not kept:  # the default: the log open in the sidebar and the next one with a run
+    current = session.selected_sha256()
+    kept = list(dict.fromkeys([current, *candidates] if current in log_names else candidates))[:2]
+st.session_state[LOGS_KEY] = kept[:MAX_LOGS]
+chosen = st.multiselect("Logs", list(log_names), format_func=log_names.get, key=LOGS_KEY, max_selections=MAX_LOGS,
+                        help=f"Logs with a stored run of {estimator}; every chart overlays them, one colour per log.")
+if len(chosen) < 2:
+    st.info("Select at least two logs above.")
+    st.stop()
+
+# ------------------------------------------------------------------ one run per log
+run_names = {sha256: comparison.run_names(stored[sha256]) for sha256 in chosen}
+columns = st.columns(len(chosen))
+picked = {}
+for column, sha256 in zip(columns, chosen, strict=True):
+    if st.session_state.get(f"cmp_run_{sha256}") not in with_runs[sha256]:  # a deleted run: the newest instead
+        st.session_state[f"cmp_run_{sha256}"] = with_runs[sha256][0]
+    picked[sha256] = column.selectbox(f"Run of {entries[sha256].display_name}", with_runs[sha256],
+                                      format_func=run_names[sha256].get, key=f"cmp_run_{sha256}")
+logs = {sha256: adapters.stored_log(root, sha256) for sha256 in chosen}
+results = {sha256: adapters.run_comparison(root, sha256, run_id) for sha256, run_id in picked.items()}
+log_runs = {sha256: figures.LogRun(entries[sha256].display_name, run_names[sha256][picked[sha256]],
+                                   figures.time_base(logs[sha256]), {}) for sha256 in chosen}
+labels = {sha256: log_run.label for sha256, log_run in log_runs.items()}
+
+# ------------------------------------------------------------------ RMS per log against the baseline log
+st.subheader(f"RMS errors of {estimator} (paper Table 2 layout)")
+if st.session_state.get(BASELINE_KEY) not in chosen:
+    st.session_state[BASELINE_KEY] = chosen[0]
+baseline = st.selectbox("Baseline log", chosen, format_func=log_names.get, key=BASELINE_KEY,
+                        help="The RMS table gives every log's difference to this log's run.")
+without = [labels[sha256] for sha256, result in results.items() if result.reference is None]
+if without:
+    st.warning("No ground truth and no onboard estimate, so no errors, in: " + ", ".join(without) + ".")
+deltas = comparison.log_rms_comparison({labels[sha256]: adapters.rms_table(root, sha256, run_id)
+                                        for sha256, run_id in picked.items()}, estimator, labels[baseline])
+references = ", ".join(f"{log_runs[sha256].log_name}: {result.reference or 'none'}"
+                       for sha256, result in results.items())
+st.caption(f"Each log against its own reference ({references}). RMS (difference to the baseline **"
+           f"{labels[baseline]}**, in the quantity's unit and in % of the baseline's RMS); ▼ green improved, ▲ red "
+           f"regressed, ≈ within {comparison.RMS_CHANGE_TOLERANCE_PCT:g} %.")
+if len(deltas):
+    st.table(tables.rms_delta_style(deltas, labels[baseline]))
+
+
+# ------------------------------------------------------------------ overlaid charts
+@st.fragment
+def overlay_plots() -> None:
+    """Attitude, errors or wind of the estimator in every chosen log, over the time since each log's start."""
+    panel = st.segmented_control("Show", list(CHARTS), default="Attitude", key=PANEL_KEY) or "Attitude"
+    span = (0.0, max(figures.time_span(log)[1] for log in logs.values()))
+    window = session.time_range_slider(RANGE_KEY, span, "Every chart shows this range of time since each log's "
+                                       "start, with the samples in it at full resolution.")
+    frames = {sha256: result.errors if panel == "Errors" else result.quantities for sha256, result in results.items()}
+    overlaid = [figures.LogRun(log_run.log_name, log_run.run_name, log_run.time_base, frames[sha256])
+                for sha256, log_run in log_runs.items()]
+    title = f"{panel}: {estimator} across logs"
+    session.time_chart(figures.overlay_logs_figure(overlaid, estimator, CHARTS[panel], title=title, window=window),
+                       "cmp_chart", RANGE_KEY, span)
+
+
+st.subheader("Comparison")
+overlay_plots()
