@@ -42,7 +42,7 @@ from ingest.atmosphere import (
     pressure_altitude_m,
 )
 from ingest.errors import InputError
-from ingest.flightlog import OPTIONAL_COLUMNS, STREAM_COLUMNS, FlightLog, LogMetadata, stream_info
+from ingest.flightlog import OPTIONAL_COLUMNS, STREAM_COLUMNS, FlightLog, LogMetadata, stream_info, utc_offset_s
 from ingest.frames import euler_to_quat, quat_to_euler, wrap_angle_deg
 from ingest.px4_topics import SENSOR_STREAMS
 
@@ -140,7 +140,7 @@ def flightlog_from_dataflash(content: bytes, *, source: str) -> FlightLog:
         start_time_s=float(imu_time_s[0]),
         end_time_s=float(imu_time_s[-1]),
         duration_s=float(imu_time_s[-1] - imu_time_s[0]),
-        utc_offset_s=_utc_offset_s(streams.get("gps")),
+        utc_offset_s=utc_offset_s(streams.get("gps")),
         parameters=parameters,
         streams={name: stream_info(topics[name], frame.index.to_numpy()) for name, frame in streams.items()},
         warnings=list(dict.fromkeys(warnings)),
@@ -536,14 +536,4 @@ _STREAMS: dict[str, Callable[[_Records, _Context], tuple[pd.DataFrame, str] | st
     "truth_global_position": _truth_global_position, "truth_wind": _truth_wind,
 }
 
-
-def _utc_offset_s(gps: pd.DataFrame | None) -> float | None:
-    """UTC unix time minus log time [s]: median over GPS rows with GPS time, paired with the GPA sample time
-    when logged (the fix's own time) else the row time; None without any."""
-    if gps is None:
-        return None
-    log_time_s = gps["sample_time_s"].to_numpy() if "sample_time_s" in gps else gps.index.to_numpy()
-    offset_s = gps["time_utc_s"].to_numpy() - log_time_s
-    offset_s = offset_s[np.isfinite(offset_s)]
-    return float(np.median(offset_s)) if len(offset_s) else None
 

@@ -194,3 +194,18 @@ def stream_info(topic: str, time_s: np.ndarray) -> StreamInfo:
     gaps = tuple((float(time_s[i]), float(dt[i])) for i in np.flatnonzero(is_gap))
     return StreamInfo(topic=topic, n_samples=n, rate_hz=1.0 / median_dt if median_dt > 0 else float("nan"),
                       gaps=gaps)
+
+
+def utc_offset_s(gps: pd.DataFrame | None) -> float | None:
+    """UTC unix time minus log time [s] of a canonical ``gps`` stream: median over the rows that carry UTC; None
+    without any.
+
+    The receiver's UTC stamps the measurement, so it is paired with the sample time when logged (the publication
+    time lags it by the receiver latency, ~0.1 s).
+    """
+    if gps is None:
+        return None
+    log_time_s = gps["sample_time_s"].to_numpy() if "sample_time_s" in gps else gps.index.to_numpy()
+    offset_s = gps["time_utc_s"].to_numpy() - log_time_s
+    offset_s = offset_s[np.isfinite(offset_s)]
+    return float(np.median(offset_s)) if len(offset_s) else None

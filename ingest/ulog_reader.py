@@ -48,6 +48,7 @@ from ingest.flightlog import (
     FlightLog,
     LogMetadata,
     stream_info,
+    utc_offset_s,
 )
 from ingest.frames import quat_to_euler, wrap_angle_deg
 from ingest.px4_topics import (
@@ -195,7 +196,7 @@ def flightlog_from_ulog(ulog: ULog, *, source: str, sha256: str = "", notes: Seq
         start_time_s=float(imu_time_s[0]),
         end_time_s=float(imu_time_s[-1]),
         duration_s=float(imu_time_s[-1] - imu_time_s[0]),
-        utc_offset_s=_utc_offset_s(streams.get("gps")),
+        utc_offset_s=utc_offset_s(streams.get("gps")),
         parameters=parameters,
         streams={stream: stream_info(topics[stream], _sample_times_s(frame)) for stream, frame in streams.items()},
         warnings=list(dict.fromkeys(warnings)),  # a topic feeding several streams reports its cleaning once
@@ -552,19 +553,6 @@ def _sample_times_s(frame: pd.DataFrame) -> np.ndarray:
             return np.sort(sample_time_s)
     return frame.index.to_numpy()
 
-
-def _utc_offset_s(gps: pd.DataFrame | None) -> float | None:
-    """UTC unix time minus log time [s]: median over GPS rows that carry UTC; None without any.
-
-    The receiver's UTC stamps the measurement, so it is paired with the sample time when logged (the publication
-    time ``timestamp`` lags it by the receiver latency, ~0.1 s).
-    """
-    if gps is None:
-        return None
-    log_time_s = gps["sample_time_s"].to_numpy() if "sample_time_s" in gps else gps.index.to_numpy()
-    offset_s = gps["time_utc_s"].to_numpy() - log_time_s
-    offset_s = offset_s[np.isfinite(offset_s)]
-    return float(np.median(offset_s)) if len(offset_s) else None
 
 
 def _logging_warnings(ulog: ULog) -> list[str]:
