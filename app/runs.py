@@ -18,7 +18,7 @@ from app.workspace import Workspace
 from calib.calibration import Calibration
 from estimators.api import DEFAULT_ESTIMATORS, run_estimators
 from estimators.config import EstimatorConfig, config_from_calibration
-from estimators.warmup import COMPILE_MESSAGE, cache_state, prepare_compile
+from estimators.warmup import COMPILE_MESSAGE, SUN_SOLVER, cache_state, prepare_compile
 from ingest import FlightLog
 
 #: ``noise`` setting of a run with the filters' built-in noise (datasheet values).
@@ -165,8 +165,9 @@ def replay(log: FlightLog, settings: RunSettings, calibration: Calibration | Non
     clock = StageClock(progress, STAGES_PER_ESTIMATOR * len(settings.estimators) + 1) if own_clock else clock
     states, diagnostics, report = [], [], {}
     cold: set[str] = set()
-    if prepare_compile(settings.estimators) is not None:  # (after dropping a stale cache numba would load)
-        cold = {name for name in settings.estimators if not cache_state((name,)).warm}
+    solver = (SUN_SOLVER,) if "sun" in settings.heading else ()
+    if prepare_compile((*settings.estimators, *solver)) is not None:  # (after dropping a stale cache numba would load)
+        cold = {name for name in settings.estimators if not cache_state((name, *solver)).warm}
     count = len(settings.estimators)
     for k, name in enumerate(settings.estimators):
         prefix = f"{COMPILE_MESSAGE.capitalize()}: " if name in cold else ""

@@ -5,13 +5,15 @@ edit of a kernel source) compiles them, which takes minutes; later processes loa
 (``__pycache__`` beside each source file, or ``NUMBA_CACHE_DIR``) in seconds.
 
 * :func:`warm_up` runs each filter on a tiny synthetic flight (straight level flight, a few seconds), which compiles
-  and caches every kernel a replay of a real log uses (same argument types), and the ULog reader's numba function,
-  and returns the time it took.
+  and caches every kernel a replay of a real log uses (same argument types), solves the sun vector of a few
+  synthetic photocell samples (the adaptive least-squares kernel the sun heading and the Sun vector page use), warms
+  the ULog reader's numba function, and returns the time it took.
 * :func:`cache_state` says, without compiling anything, whether a replay would compile (:attr:`CacheState.warm`).
 * :func:`prepare_compile` is what a command calls before running the estimators: if the cache is cold it drops a
   stale cache (see below) so the compile really happens, and returns the message to show.
 
-What the check detects, per entry kernel (the ``run_kernel`` of each filter):
+What the check detects, per entry kernel (the ``run_kernel`` of each filter, the sun solver's
+``adaptive_kernel``):
 
 * no cache index, an index of another numba version, Python version or CPU (numba's own key), an index whose
   recorded source stamp (modification time and size of the kernel's own file) differs, or whose entries were made
@@ -26,8 +28,7 @@ What the check detects, per entry kernel (the ``run_kernel`` of each filter):
 What it does not detect: a change in a module outside ``estimators`` (numpy, numba internals are covered by
 numba's version key only), a source file whose modification time was set back (e.g. restored from an archive with
 old times), and a kernel called with argument types the warm-up does not produce (then numba compiles that
-signature on first use, silently). Not covered at all: the sun-vector solver's kernel (``--heading sun``/``mag+sun``
-compiles it on its first use, without the message) and the ULog reader's numba function (warmed, not checked).
+signature on first use, silently). The ULog and DataFlash readers' numba functions are warmed, not checked.
 It may report stale for an edit that did not touch any numba code (any newer
 source file counts); the price is one needless compile.
 """
@@ -52,6 +53,11 @@ COMPILE_MESSAGE = "compiling the estimators (first run only)"
 #: Estimator name -> module whose ``run_kernel`` its replay calls from Python (the filter's entry point).
 KERNEL_MODULES = {"three_stage": "estimators.three_stage.kernel", "full_state_direct": "estimators.direct.kernel",
                   "full_state_indirect": "estimators.indirect.kernel"}
+#: Name of the sun-vector solver in :func:`cache_state` (its kernel compiles like a filter's).
+SUN_SOLVER = "sun_solver"
+#: Entry kernel of each estimator and of the sun solver: (module, function) called from Python.
+ENTRY_KERNELS = {**{name: (module, "run_kernel") for name, module in KERNEL_MODULES.items()},
+                 SUN_SOLVER: ("estimators.sun.solver_kernel", "adaptive_kernel")}
 #: The package directory.
 PACKAGE_DIR = Path(__file__).resolve().parent
 
@@ -102,9 +108,10 @@ def _numba_sources() -> list[Path]:
 
 
 def _entry_kernels(estimators: Iterable[str] | None = None) -> dict[str, object]:
-    """Estimator name -> its ``run_kernel`` dispatcher (importing compiles nothing); all filters by default."""
-    names = KERNEL_MODULES if estimators is None else [name for name in estimators if name in KERNEL_MODULES]
-    return {name: importlib.import_module(KERNEL_MODULES[name]).run_kernel for name in names}
+    """Estimator name (or :data:`SUN_SOLVER`) -> its entry kernel's dispatcher (importing compiles nothing); all of
+    them by default."""
+    names = ENTRY_KERNELS if estimators is None else [name for name in estimators if name in ENTRY_KERNELS]
+    return {name: getattr(importlib.import_module(ENTRY_KERNELS[name][0]), ENTRY_KERNELS[name][1]) for name in names}
 
 
 def _kernel_state(dispatcher, newest_source_mtime: float) -> tuple[str | None, bool]:
@@ -128,7 +135,8 @@ def _kernel_state(dispatcher, newest_source_mtime: float) -> tuple[str | None, b
 
 
 def cache_state(estimators: Iterable[str] | None = None) -> CacheState:
-    """Whether replaying the filters (default all three; else the named ones, unknown names ignored) would compile.
+    """Whether replaying the filters and solving the sun vector (default all; else the named ones, unknown names
+    ignored; :data:`SUN_SOLVER` names the solver) would compile.
 
     Compiles nothing (about 0.1 s once the estimators are imported). See the module docstring for what this detects
     and what it does not.
@@ -154,7 +162,6 @@ def drop_package_caches() -> int:
     from numba.core.registry import CPUDispatcher
 
     _entry_kernels()
-    importlib.import_module("estimators.sun.solver_kernel")
     count = 0
     for module_name, module in list(sys.modules.items()):
         if not module_name.startswith("estimators.") or module is None:
@@ -238,7 +245,29 @@ def warm_up(report: Callable[[str], None] | None = None) -> float:
         run_estimators(log, estimators=(name,), allow_untrusted=True)
         if report is not None:
             report(f"  {name}: {time.perf_counter() - t0:.1f} s")
+    t0 = time.perf_counter()
+    _solve_synthetic_sun()
+    if report is not None:
+        report(f"  sun-vector solver: {time.perf_counter() - t0:.1f} s")
     return time.perf_counter() - start
+
+
+def _solve_synthetic_sun(n_samples: int = 20) -> None:
+    """Solve the sun vector of ``n_samples`` noise-free currents of the default device (sun 40 deg above the
+    horizon, turning in azimuth), with a per-sample up vector as the Sun vector page passes it."""
+    from estimators.sun.photocells import CURRENT_COLUMNS, photocell_currents
+    from estimators.sun.solver import solve_sun_log
+    from ingest.sun_device import SunDevice
+
+    device = SunDevice()
+    azimuth = np.linspace(0.0, 2.0 * math.pi, n_samples, endpoint=False)
+    elevation = math.radians(40.0)
+    s_device = np.column_stack([math.cos(elevation) * np.cos(azimuth), math.cos(elevation) * np.sin(azimuth),
+                                np.full(n_samples, -math.sin(elevation))])
+    currents = photocell_currents(s_device, 5e-3, 2e-4, device)
+    frame = pd.DataFrame(currents, columns=list(CURRENT_COLUMNS),
+                         index=pd.Index(np.arange(n_samples) * 0.1, name="time_s"))
+    solve_sun_log(frame, device=device, noise_a=1e-5, up_body=np.tile([0.0, 0.0, -1.0], (n_samples, 1)))
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -1,5 +1,6 @@
 """A small simulated fleet for the batch tests: one vehicle's short flights, its gyro noise doubled in the later
-ones, plus an empty and a corrupt file, and the vehicle mapping file (simulated logs carry no sys_uuid)."""
+ones, plus an empty and a corrupt file, and the vehicle mapping file (simulated logs carry no sys_uuid); and its
+batch outputs for the Fleet page tests."""
 
 from __future__ import annotations
 
@@ -9,6 +10,10 @@ from pathlib import Path
 
 import numpy as np
 
+from app.batch.history import read_vehicle_map
+from app.batch.plan import LOGS_DIR, BatchSettings, discover_inputs
+from app.batch.summary import fleet_table, write_summary
+from app.batch.task import process_log
 from sim.px4_export import write_outputs
 from sim.scenarios import SCENARIOS
 from sim.simulate import simulate
@@ -44,3 +49,18 @@ def write_fleet(directory: Path, *, bad_files: bool = True) -> Path:
     mapping = directory.parent / f"{directory.name}_vehicles.json"
     mapping.write_text(json.dumps({VEHICLE: ["uav1_day*.ulg"]}))
     return mapping
+
+
+#: Estimators of :func:`write_batch_outdir` (two: the page's RMS distributions compare estimators).
+OUTDIR_ESTIMATORS = ("three_stage", "full_state_indirect")
+
+
+def write_batch_outdir(outdir: Path, logs: Path) -> None:
+    """The fleet simulated into ``logs`` and its batch outputs in ``outdir``, as ``solarnav batch LOGS --calibrate
+    --replay --vehicles ... -o OUTDIR`` with :data:`OUTDIR_ESTIMATORS` writes them; the tasks run in this process
+    (the cluster runs are tests/test_batch*.py)."""
+    vehicles = read_vehicle_map(write_fleet(logs))
+    (outdir / LOGS_DIR).mkdir(parents=True)
+    settings = BatchSettings(calibrate=True, replay=True, estimators=OUTDIR_ESTIMATORS)
+    rows = [row for item in discover_inputs([str(logs)]) for row in process_log(item, settings, str(outdir))]
+    write_summary(*fleet_table(rows, vehicles), outdir)

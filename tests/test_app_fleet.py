@@ -12,12 +12,9 @@ from streamlit.testing.v1 import AppTest
 
 from app import session
 from app.batch.figures import FLAG_TRACE
-from app.batch.history import read_vehicle_map
-from app.batch.plan import LOGS_DIR, BatchSettings, discover_inputs
-from app.batch.summary import BATCHES_DIR, fleet_table, read_summary, write_summary
-from app.batch.task import process_log
+from app.batch.summary import BATCHES_DIR, read_summary
 from app.workspace import Workspace
-from tests.batch_logs import DOUBLED_FROM, N_FLIGHTS, VEHICLE, flight_name, write_fleet
+from tests.batch_logs import DOUBLED_FROM, N_FLIGHTS, OUTDIR_ESTIMATORS, VEHICLE, flight_name, write_batch_outdir
 from tests.conftest import REPO_DIR
 
 ENTRYPOINT = REPO_DIR / "app" / "dashboard.py"
@@ -28,16 +25,9 @@ TIMEOUT_S = 300
 
 @pytest.fixture(scope="module")
 def workspace_dir(tmp_path_factory) -> Path:
-    """A workspace whose ``batches/sim_fleet`` holds the batch outputs of the simulated fleet (the tasks run here,
-    without a cluster: the cluster runs are tests/test_batch*.py)."""
+    """A workspace whose ``batches/sim_fleet`` holds the batch outputs of the simulated fleet."""
     root = tmp_path_factory.mktemp("workspace")
-    logs = tmp_path_factory.mktemp("fleet") / "logs"
-    vehicles = read_vehicle_map(write_fleet(logs))
-    outdir = root / BATCHES_DIR / "sim_fleet"
-    (outdir / LOGS_DIR).mkdir(parents=True)
-    settings = BatchSettings(calibrate=True, replay=True, estimators=("three_stage", "full_state_indirect"))
-    rows = [row for item in discover_inputs([str(logs)]) for row in process_log(item, settings, str(outdir))]
-    write_summary(*fleet_table(rows, vehicles), outdir)
+    write_batch_outdir(root / BATCHES_DIR / "sim_fleet", tmp_path_factory.mktemp("fleet") / "logs")
     return root
 
 
@@ -70,7 +60,7 @@ def test_the_page_opens_the_workspace_batch_and_flags_the_doubled_gyro(fleet_pag
     assert len(flag["text"]) == len(flagged) and all("x the median" in text for text in flag["text"])
     assert {trace["name"] for trace in traces} == {VEHICLE, FLAG_TRACE}
     boxes = json.loads(at.get("plotly_chart")[1].proto.spec)["data"]
-    assert [box["name"] for box in boxes] == ["three_stage", "full_state_indirect"]
+    assert [box["name"] for box in boxes] == list(OUTDIR_ESTIMATORS)
 
 
 def test_a_log_of_the_batch_opens_on_the_other_pages(fleet_page, workspace_dir):

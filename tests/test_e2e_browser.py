@@ -1,7 +1,7 @@
 """End to end in a real browser: ``solarnav dashboard`` on a free port with a temporary workspace, driven by
 headless Chromium (Debian's ``chromium``) through Playwright: upload a sample log with its sun-device files, look
-at every page, run the estimators, and find the comparison chart and the RMS table. Screenshots of every page go
-to ``test-artifacts/`` (git-ignored) for a human to look at.
+at every page, run the estimators, and find the comparison chart and the RMS table; open a batch output directory
+on the Fleet page. Screenshots of every page go to ``test-artifacts/`` (git-ignored) for a human to look at.
 """
 
 from __future__ import annotations
@@ -18,7 +18,9 @@ from pathlib import Path
 
 import pytest
 
+from app.batch.figures import FLAG_TRACE
 from app.samples import SAMPLE_DIR
+from tests.batch_logs import DOUBLED_FROM, N_FLIGHTS, OUTDIR_ESTIMATORS, VEHICLE, flight_name, write_batch_outdir
 from tests.conftest import REPO_DIR
 
 pytestmark = pytest.mark.browser
@@ -35,7 +37,8 @@ RUN_MS = 900_000
 SETTLED_JS = ("() => !document.querySelector('[data-testid=\"stStatusWidget\"]')"
               " && !document.querySelector('[data-testid=\"stSpinner\"]')"
               " && !document.querySelector('[data-testid=\"stSkeleton\"]')")
-#: Every plotly chart of the page: its title, trace names and types, first x axis range and smallest finite x.
+#: Every plotly chart of the page: its title, trace names, sizes and types, first x axis range and smallest
+#: finite x.
 PLOTS_JS = """() => {
     const DTYPES = {f8: Float64Array, f4: Float32Array, i4: Int32Array, u4: Uint32Array, i2: Int16Array,
                     u2: Uint16Array, i1: Int8Array, u1: Uint8Array};
@@ -59,10 +62,15 @@ PLOTS_JS = """() => {
         const title = layout.title ? (typeof layout.title === 'string' ? layout.title : layout.title.text || '') : '';
         const range = layout.xaxis && layout.xaxis.range ? Array.from(layout.xaxis.range).map(Number) : null;
         return {title: title.replace(/<[^>]*>/g, ''), names: data.map(t => t.name || ''),
+                sizes: data.map(t => values(t.x).length),
                 types: data.map(t => t.type || 'scatter'), xrange: range, xmin: Number.isFinite(xmin) ? xmin : null,
                 x0: data.length ? String(JSON.stringify(data[0].x)).slice(0, 80) : null};
     });
 }"""
+#: The rows of a Streamlit dataframe's accessible table (the grid draws on a canvas): header, then one list of cell
+#: texts per row drawn.
+GRID_JS = """grid => [...grid.querySelectorAll('[role=row]')].map(
+    row => [...row.querySelectorAll('[role=columnheader], [role=gridcell]')].map(cell => cell.textContent))"""
 #: An RMS difference cell: "4.00 (+2.00, +100.0 %)" (and a change mark).
 RMS_DELTA_CELL = re.compile(r"\d+\.\d{2} \([+-]\d+\.\d{2}, (?:[+-]\d+\.\d|–) %\)")
 ESTIMATORS = ("three_stage", "full_state_direct", "full_state_indirect")
@@ -316,3 +324,42 @@ def test_upload_run_and_compare_in_a_browser(page):
     _open(page, "Workspace")
     page.get_by_role("heading", name="Rename or delete").wait_for()
     _screenshot(page, "workspace")
+
+
+@pytest.fixture(scope="module")
+def batch_outdir(tmp_path_factory) -> Path:
+    """A ``solarnav batch`` OUTDIR of the simulated fleet (one vehicle, its gyro noise doubled in the later logs)."""
+    outdir = tmp_path_factory.mktemp("batch") / "out"
+    write_batch_outdir(outdir, tmp_path_factory.mktemp("fleet") / "logs")
+    return outdir
+
+
+def test_a_batch_output_directory_on_the_fleet_page_in_a_browser(page, batch_outdir):
+    _open(page, "Fleet")
+    page.get_by_text("No batch opened").wait_for()  # the server's workspace has no batch: the user enters OUTDIR
+    field = page.get_by_label("Batch output directory", exact=True)
+    field.fill(str(batch_outdir))
+    field.press("Enter")
+    page.get_by_role("heading", name="Noise per vehicle").wait_for()
+    _settle(page)
+    count = page.locator("[data-testid='stMetric']").filter(has_text="Logs")
+    assert count.locator("[data-testid='stMetricValue']").inner_text() == str(N_FLIGHTS + 2)  # with 2 bad files
+    grid = page.locator("[data-testid='stDataFrame'] table[role='grid']").first  # the grid's accessible table
+    header, *rows = grid.evaluate(GRID_JS)
+    logs = [dict(zip(header, row, strict=True)) for row in rows]
+    assert int(grid.get_attribute("aria-rowcount")) == 1 + len(logs) == 3 + N_FLIGHTS * len(OUTDIR_ESTIMATORS)
+    names = {f"{flight_name(k)}.ulg" for k in range(N_FLIGHTS)}
+    assert {log["name"] for log in logs} == {*names, "empty.ulg", "corrupt.ulg"}  # every row drawn
+    assert all((log["status"] == "ok") == (log["name"] in names) for log in logs), logs
+    good = [log for log in logs if log["name"] in names]
+    assert {log["vehicle"] for log in good} == {VEHICLE}
+    flagged = [f"{flight_name(k)}.ulg" for k in range(DOUBLED_FROM, N_FLIGHTS)]
+    warnings = page.locator("[data-testid='stAlertContentWarning']").all_inner_texts()
+    assert len(warnings) == len(flagged), warnings
+    for name, text in zip(flagged, warnings, strict=True):
+        assert f"{VEHICLE}: {name}: gyroscope noise" in text, text
+    assert all((log["noise_flags"] == "gyroscope") == (log["name"] in flagged) for log in good), good
+    trend = _plot(page, "gyroscope per vehicle", lambda plot: FLAG_TRACE in plot["names"])
+    sizes = dict(zip(trend["names"], trend["sizes"], strict=True))
+    assert sizes == {VEHICLE: N_FLIGHTS, FLAG_TRACE: len(flagged)}, trend
+    _screenshot(page, "fleet")

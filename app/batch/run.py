@@ -10,7 +10,6 @@ has its own setting). When it fails again, the client records one error row with
 
 from __future__ import annotations
 
-import importlib.util
 import logging
 import os
 import sys
@@ -72,10 +71,17 @@ def scheduler_address(scheduler: str | None = None) -> str | None:
 
 
 def dashboard_text(client: Client) -> str:
-    """The Dask dashboard's link, and whether the scheduler can draw it (its pages need bokeh, which
-    ``dask[distributed]`` does not install)."""
-    has_bokeh = client.run_on_scheduler(lambda: importlib.util.find_spec("bokeh") is not None)
-    return f"Dask dashboard: {client.dashboard_link}" + ("" if has_bokeh else " (blank until bokeh>=3.1 is installed)")
+    """The Dask dashboard's link, or why the scheduler serves none.
+
+    The local cluster serves it (bokeh is a dependency of solarnav); a user's scheduler serves none when it was
+    started with ``--no-dashboard`` or where bokeh>=3.1 is not installed (its link would not show the dashboard).
+    """
+    # Dask adds the dashboard's (bokeh) pages to the scheduler's HTTP server only when it is enabled and bokeh
+    # imports; a lambda travels by value: the scheduler need not have solarnav installed
+    if client.run_on_scheduler(lambda dask_scheduler: bool(dask_scheduler.http_application.applications)):
+        return f"Dask dashboard: {client.dashboard_link}"
+    return ("Dask dashboard: none (the scheduler serves no dashboard: started with --no-dashboard, or bokeh>=3.1 "
+            "is not installed where it runs)")
 
 
 @dataclass

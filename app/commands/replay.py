@@ -29,7 +29,7 @@ from estimators.api import (
 from estimators.config import EstimatorConfig, config_from_calibration
 from estimators.consistency import turbulence_intensity_m_s
 from estimators.inputs.records import HEADING_SOURCES
-from estimators.warmup import prepare_compile
+from estimators.warmup import SUN_SOLVER, prepare_compile
 from ingest.errors import InputError
 from ingest.files import atomic_write
 from ingest.sun_log import load_sun_device, with_sun
@@ -77,7 +77,7 @@ def run(args: argparse.Namespace) -> int:
     if args.sun is not None:
         device = load_sun_device(args.device) if args.device is not None else None
         log = with_sun(log, args.sun, device=device)
-    announce_compile(names)
+    announce_compile([*names, *([SUN_SOLVER] if "sun" in args.heading else [])])
     result = run_estimators(log, estimators=names, config=config, configs=configs, heading=args.heading,
                             rate_hz=args.rate_hz, allow_untrusted=args.force)
     write_table(result.states, outputs[0])

@@ -1,18 +1,23 @@
 """Sun vector: photocell currents, which cells are lit or faulty over time, the solved sun direction against the
 one predicted from the ephemeris and the attitude, and their angle."""
 
+from contextlib import nullcontext
+
 import numpy as np
 import pandas as pd
 import streamlit as st
 
 from app import adapters, figures, session, sun_compare
 from app.comparison import gps_origin
+from estimators.warmup import COMPILE_MESSAGE, SUN_SOLVER, cache_state
 from ingest import SunDevice
 
 log = session.require_log()
 root, sha256 = session.root(), session.selected_sha256()
 clock = figures.time_base(log)
 RANGE_KEY = "sun_time_range"
+#: Set once the solver's kernel is known to be compiled in this session (the check reads the sources: 0.1 s).
+SOLVER_READY_KEY = "sun_solver_ready"
 st.title(f"Sun vector: {log.meta.source}")
 if not log.has("sun"):
     st.info("This log has no sun-device data. Upload the photocell CSV (and its device JSON) together with the "
@@ -28,8 +33,11 @@ mounting = ", ".join(f"{a:g}" for a in device.mount_rpy_deg)
 st.caption(f"Device: side faces tilted {device.tilt_deg:g} deg at azimuths {azimuths} deg; mounted at roll, pitch, "
            f"yaw {mounting} deg.")
 
-with session.input_errors():
+ready = st.session_state.get(SOLVER_READY_KEY) or cache_state((SUN_SOLVER,)).warm
+with session.input_errors(), nullcontext() if ready else st.spinner(f"{COMPILE_MESSAGE.capitalize()}: the "
+                                                                   "sun-vector solver ..."):
     solution = adapters.sun_table(root, sha256)
+st.session_state[SOLVER_READY_KEY] = True
 st.caption(f"The solver's sky-light model used the up vector of the {solution.attrs.get('up_reference', 'level')} "
            "attitude ('level': none available).")
 states = sun_compare.cell_states(solution, device)
