@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -71,36 +72,62 @@ class RunSettings:
 
 class StageClock:
     """The stages of a run as they happen: each one's text goes to ``progress`` when it starts, its wall-clock
-    duration is measured until the next one starts (or :meth:`finish`).
+    duration is measured until the next one starts (or :meth:`finish`). Stages run one after the other; within a
+    stage, *lanes* (the estimators running side by side) are timed on their own. Thread-safe: the estimators report
+    from their threads.
 
     Parameters
     ----------
     progress : callable or None
-        ``progress(fraction, text)``; the fraction counts the stages started out of ``steps``.
+        ``progress(fraction, text)``; the fraction counts the steps (stages started and :meth:`note` calls) out of
+        ``steps``.
     steps : int
-        Stages expected in all (the bar's denominator).
+        Steps expected in all (the bar's denominator; :func:`run_steps`).
     """
 
     def __init__(self, progress: Progress | None, steps: int):
         self.progress, self.steps, self.started = progress, max(1, steps), 0
         #: (stage, duration [s]) of every finished stage, in order.
         self.measured: list[tuple[str, float]] = []
+        #: stage -> {lane: duration [s]} of the lanes timed within it.
+        self.lanes: dict[str, dict[str, float]] = {}
         self._current: tuple[str, float] | None = None
+        self._lane_started: dict[str, float] = {}
+        self._lock = threading.RLock()
 
     def start(self, stage: str, text: str) -> None:
         """Finish the stage under way and start ``stage``, showing ``text``."""
-        self.finish()
-        self._current = (stage, time.perf_counter())
-        if self.progress is not None:
-            self.progress(min(self.started / self.steps, 1.0), text)
-        self.started += 1
+        with self._lock:
+            self.finish()
+            self._current = (stage, time.perf_counter())
+            self.note(text)
+
+    def note(self, text: str) -> None:
+        """One more step within the stage under way, showing ``text``."""
+        with self._lock:
+            if self.progress is not None:
+                self.progress(min(self.started / self.steps, 1.0), text)
+            self.started += 1
+
+    def lane_start(self, lane: str) -> None:
+        """``lane`` (an estimator) starts within the stage under way."""
+        with self._lock:
+            self._lane_started[lane] = time.perf_counter()
+
+    def lane_end(self, lane: str) -> None:
+        """``lane`` ended: its duration is kept under the stage under way."""
+        with self._lock:
+            if self._current is not None and lane in self._lane_started:
+                seconds = time.perf_counter() - self._lane_started.pop(lane)
+                self.lanes.setdefault(self._current[0], {})[lane] = seconds
 
     def finish(self) -> None:
         """Record the duration of the stage under way, if any."""
-        if self._current is not None:
-            stage, began = self._current
-            self.measured.append((stage, time.perf_counter() - began))
-            self._current = None
+        with self._lock:
+            if self._current is not None:
+                stage, began = self._current
+                self.measured.append((stage, time.perf_counter() - began))
+                self._current = None
 
     def done(self) -> None:
         """Finish the stage under way and report ``"Done"`` at fraction 1."""
@@ -109,25 +136,39 @@ class StageClock:
             self.progress(1.0, "Done")
 
     def summary(self) -> str:
-        """``"4.2 s: preparing inputs 0.3 s, running three_stage 1.1 s, ..."``: the total and every stage (stages of
-        the same name added up, in order of first appearance)."""
+        """``"4.2 s: preparing inputs 0.3 s, running the filters 2.1 s (three_stage 1.1 s, ...), ..."``: the total
+        and every stage (stages of the same name added up, in order of first appearance), with its lanes."""
         totals: dict[str, float] = {}
         for stage, seconds in self.measured:
             totals[stage] = totals.get(stage, 0.0) + seconds
-        parts = ", ".join(f"{stage} {seconds:.1f} s" for stage, seconds in totals.items())
+
+        def lanes(stage: str) -> str:
+            timed = self.lanes.get(stage)
+            return f" ({', '.join(f'{lane} {seconds:.1f} s' for lane, seconds in timed.items())})" if timed else ""
+
+        parts = ", ".join(f"{stage} {seconds:.1f} s{lanes(stage)}" for stage, seconds in totals.items())
         return f"{sum(totals.values()):.1f} s: {parts}"
 
 
-#: Stages of each estimator's replay (:func:`replay`; then one for stacking the tables, and :data:`SAVING` in
-#: :func:`replay_and_store`).
-STAGES_PER_ESTIMATOR = 4
+def run_steps(n_estimators: int, store: bool = True, calibrate: bool = False) -> int:
+    """Steps of a :class:`StageClock` for a run of ``n_estimators``: checking the inputs, per estimator preparing
+    its inputs, its filter starting and ending, then the diagnostics and stacking; plus saving (``store``) and a
+    calibration before (``calibrate``)."""
+    return 1 + STAGES_PER_ESTIMATOR * n_estimators + 2 + int(store) + int(calibrate)
+
+
+#: Steps of each estimator in :func:`run_steps` (preparing its inputs, its filter started, ended).
+STAGES_PER_ESTIMATOR = 3
 SAVING = "saving"
+#: The stage in which the estimators run side by side (each one's time is a lane of it).
+RUNNING = "running the filters"
 
 
 def replay(log: FlightLog, settings: RunSettings, calibration: Calibration | None = None,
            progress: Progress | None = None, clock: StageClock | None = None
            ) -> tuple[pd.DataFrame, pd.DataFrame, dict]:
-    """Run the selected estimators one after the other, reporting every stage of each as it starts.
+    """Run the selected estimators, side by side (:func:`estimators.api.run_estimators` with one thread per
+    estimator), reporting every stage as it starts.
 
     Parameters
     ----------
@@ -139,15 +180,16 @@ def replay(log: FlightLog, settings: RunSettings, calibration: Calibration | Non
         Noise for R (:func:`estimators.config.config_from_calibration`, the estimator's tuned figures when the
         calibration has them); the default noise without one.
     progress : callable, optional
-        ``progress(fraction, text)`` at the start of each stage of each estimator: ``"Running <name> (k of n)
-        ..."`` (checking the inputs), then ``"<name> (k of n): preparing inputs ..."``, ``"...: running the filter
-        ..."``, ``"...: computing diagnostics ..."`` (NIS consistency, report, tables), and ``"Done"`` at the end
-        (by the caller when it passes its ``clock``);
-        every text of an estimator whose numba kernels are not in the cache yet
-        (:func:`estimators.warmup.cache_state`) starts with :data:`~estimators.warmup.COMPILE_MESSAGE`
-        (capitalised). Ignored when ``clock`` is given (its own ``progress`` is used).
+        ``progress(fraction, text)`` at every step: ``"Checking the inputs ..."``, ``"Preparing the inputs of
+        <name> ..."`` per estimator, ``"Running the filters: <name> running, <name> done, ..."`` whenever one
+        starts or ends, ``"Computing the diagnostics ..."``, ``"Stacking the tables ..."``, and ``"Done"`` at the
+        end (by the caller when it passes its ``clock``). Until an estimator whose numba kernels are not in the
+        cache yet (:func:`estimators.warmup.cache_state`) is done (it compiles when it starts), every text starts with
+        :data:`~estimators.warmup.COMPILE_MESSAGE` (capitalised) ``for <names>: ``. Ignored when
+        ``clock`` is given (its own ``progress`` is used). Called from the estimators' threads too.
     clock : StageClock, optional
-        Measures the stages (its ``measured`` durations tell where the time went); a new one without.
+        Measures the stages (its ``measured`` durations tell where the time went, its ``lanes`` each estimator's
+        time in :data:`RUNNING`); a new one without.
 
     Raises
     ------
@@ -162,41 +204,51 @@ def replay(log: FlightLog, settings: RunSettings, calibration: Calibration | Non
         Estimator name -> its report as a JSON-ready dict.
     """
     own_clock = clock is None
-    clock = StageClock(progress, STAGES_PER_ESTIMATOR * len(settings.estimators) + 1) if own_clock else clock
-    states, diagnostics, report = [], [], {}
+    names = settings.estimators
+    clock = StageClock(progress, run_steps(len(names), store=False)) if own_clock else clock
     cold: set[str] = set()
     solver = (SUN_SOLVER,) if "sun" in settings.heading else ()
-    if prepare_compile((*settings.estimators, *solver)) is not None:  # (after dropping a stale cache numba would load)
-        cold = {name for name in settings.estimators if not cache_state((name, *solver)).warm}
-    count = len(settings.estimators)
-    for k, name in enumerate(settings.estimators):
-        prefix = f"{COMPILE_MESSAGE.capitalize()}: " if name in cold else ""
-        header = f"{name} ({k + 1} of {count})"
-        clock.start("checking inputs", f"{prefix}{'r' if prefix else 'R'}unning {header} ...")
-        # run_estimators names its stages as they start (from this thread: one estimator per call)
-        stages = {"prepare": ("preparing inputs", f"{prefix}{header}: preparing inputs ..."),
-                  "run": (f"running {name}", f"{prefix}{header}: running the filter ..."),
-                  "done": ("computing diagnostics", f"{prefix}{header}: computing diagnostics ...")}
-        config = (EstimatorConfig() if calibration is None
-                  else config_from_calibration(calibration, estimator=name))
-        result = run_estimators(log, estimators=(name,), config=config, heading=settings.heading,
-                                rate_hz=settings.rate_hz, allow_untrusted=settings.allow_untrusted,
-                                progress=lambda stage, _name, stages=stages: clock.start(*stages[stage]))
-        states.append(result.states)
-        diagnostics.append(result.diagnostics)
-        report[name] = dataclasses.asdict(result.reports[name])
+    if prepare_compile((*names, *solver)) is not None:  # (after dropping a stale cache numba would load)
+        cold = {name for name in names if not cache_state((name, *solver)).warm}
+    status = dict.fromkeys(names, "waiting")
+
+    def say(text: str) -> str:  # a cold filter compiles in its first call: named until it is done
+        compiling = [name for name in names if name in cold and status[name] != "done"]
+        if not compiling:
+            return text
+        return f"{COMPILE_MESSAGE.capitalize()} for {', '.join(compiling)}: {text[0].lower()}{text[1:]}"
+
+    def running_text() -> str:
+        return say("Running the filters: " + ", ".join(f"{name} {state}" for name, state in status.items()))
+
+    def stage(event: str, name: str) -> None:  # run_estimators' progress, from this thread and the estimators'
+        if event == "prepare":
+            clock.start("preparing inputs", say(f"Preparing the inputs of {name} ..."))
+        elif event == "run":
+            first = all(state == "waiting" for state in status.values())
+            status[name] = "running"
+            if first:
+                clock.start(RUNNING, running_text())
+            else:
+                clock.note(running_text())
+            clock.lane_start(name)
+        elif event == "done":
+            status[name] = "done"
+            clock.lane_end(name)
+            clock.note(running_text())
+        else:  # "report"
+            clock.start("computing diagnostics", "Computing the diagnostics ...")
+
+    clock.start("checking inputs", say("Checking the inputs ..."))
+    configs = (None if calibration is None
+               else {name: config_from_calibration(calibration, estimator=name) for name in names})
+    result = run_estimators(log, estimators=names, config=EstimatorConfig(), configs=configs, heading=settings.heading,
+                            rate_hz=settings.rate_hz, allow_untrusted=settings.allow_untrusted, progress=stage)
     clock.start("stacking the tables", "Stacking the tables ...")
-    order = pd.CategoricalDtype(list(settings.estimators))
-    stacked = (_stacked(states, order), _stacked(diagnostics, order), report)
+    report = {name: dataclasses.asdict(result.reports[name]) for name in names}
     if own_clock:
         clock.done()
-    return stacked
-
-
-def _stacked(frames: list[pd.DataFrame], order: pd.CategoricalDtype) -> pd.DataFrame:
-    # one categorical dtype for all parts (codes remapped, no round trip through strings), so concat keeps it
-    return pd.concat([f.assign(estimator=f["estimator"].cat.set_categories(order.categories)) for f in frames],
-                     ignore_index=True)
+    return result.states, result.diagnostics, report
 
 
 def replay_and_store(workspace: Workspace, sha256: str, log: FlightLog, settings: RunSettings,
@@ -204,7 +256,7 @@ def replay_and_store(workspace: Workspace, sha256: str, log: FlightLog, settings
                      clock: StageClock | None = None) -> str:
     """:func:`replay`, then store the run in the workspace (atomically, stage :data:`SAVING`); returns its id.
     ``clock`` (else a new one on ``progress``) measures every stage."""
-    clock = clock if clock is not None else StageClock(progress, STAGES_PER_ESTIMATOR * len(settings.estimators) + 2)
+    clock = clock if clock is not None else StageClock(progress, run_steps(len(settings.estimators)))
     states, diagnostics, report = replay(log, settings, calibration, clock=clock)
     clock.start(SAVING, "Saving the run in the workspace ...")
     run_id = workspace.add_run(sha256, settings.to_dict(), states, diagnostics, report)

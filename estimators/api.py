@@ -165,7 +165,8 @@ def run_estimators(flight_log: FlightLog, *, estimators: str | Sequence[str] = D
         on it.
     progress : callable, optional
         ``progress(stage, estimator)`` with ``stage`` in ``"prepare"`` (building its inputs), ``"run"`` (its filter
-        started) and ``"done"``; called from the worker threads.
+        started) and ``"done"`` (called from the worker threads), then ``progress("report", "")`` once all are done
+        (consistency checks, reports and tables follow).
 
     Every report carries ``details["consistency"]`` (mean NIS per channel, :mod:`estimators.consistency`) and
     ``details["calibration"]`` (each calibrated figure behind the run's settings: its source and what this
@@ -213,6 +214,7 @@ def run_estimators(flight_log: FlightLog, *, estimators: str | Sequence[str] = D
             runs = list(pool.map(run_one, names))
     else:
         runs = [run_one(name) for name in names]
+    notify("report", "")
     reports = {name: _checked_report(run, configs[name], {"prepare": prepare_s[name], **run.report.timings_s},
                                      findings, fixed_wing=inputs[name].plan.fixed_wing)
                for name, run in zip(names, runs, strict=True)}

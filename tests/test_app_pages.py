@@ -146,8 +146,8 @@ def test_estimators_run_compare_and_diagnose(open_page, workspace_dir):
     sha256 = at.sidebar.selectbox[0].value
     assert len(Workspace(workspace_dir).list_runs(sha256)) == 1
     [timings] = [caption.value for caption in at.caption if caption.value.startswith("Run ")]
-    assert all(f"{stage} " in timings for stage in ("preparing inputs", "running three_stage",
-                                                    "running full_state_indirect", "computing diagnostics", "saving"))
+    assert all(f"{stage} " in timings for stage in ("preparing inputs", "running the filters", "(three_stage",
+                                                    "full_state_indirect", "computing diagnostics", "saving"))
     [rms] = [table.value for table in at.table if "Roll Angle (deg)" in table.value.columns]
     assert list(rms.index) == ["three_stage", "full_state_direct", "full_state_indirect"]
     assert list(rms.columns)[-1] == "Wind (m/s)" and rms["Yaw Angle (deg)"].notna().all()

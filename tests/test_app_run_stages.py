@@ -13,9 +13,10 @@ import pytest
 
 from app import runs
 
-#: Fake seconds each stage of the stand-in takes: inputs checked, inputs built, filter, diagnostics.
-CHECK_S, PREPARE_S, RUN_S, DIAGNOSTICS_S = 0.5, 1.0, 3.0, 2.0
-SAVE_S = 4.0
+#: Fake seconds each stage of the stand-in takes: inputs checked, inputs built (per estimator), diagnostics, saving;
+#: and each estimator's filter, the two running side by side.
+CHECK_S, PREPARE_S, DIAGNOSTICS_S, SAVE_S = 0.5, 1.0, 2.0, 4.0
+RUN_S = {"three_stage": 3.0, "full_state_direct": 5.0}
 
 
 @dataclass
@@ -41,13 +42,20 @@ def fake(monkeypatch):
     monkeypatch.setattr(runs, "prepare_compile", lambda names: None)  # a warm cache
 
     def run_estimators(log, *, estimators, progress, **kwargs):
-        (name,) = estimators
         clock.now += CHECK_S
-        for stage, seconds in (("prepare", PREPARE_S), ("run", RUN_S), ("done", DIAGNOSTICS_S)):
-            progress(stage, name)
-            clock.now += seconds
-        frame = pd.DataFrame({"estimator": pd.Categorical([name]), "time_s": [0.0]})
-        return SimpleNamespace(states=frame, diagnostics=frame, reports={name: _Report(name)})
+        for name in estimators:
+            progress("prepare", name)
+            clock.now += PREPARE_S
+        for name in estimators:  # side by side: all start, then each ends after its own time
+            progress("run", name)
+        started = clock.now
+        for name in sorted(estimators, key=lambda name: RUN_S.get(name, 1.0)):
+            clock.now = started + RUN_S.get(name, 1.0)
+            progress("done", name)
+        progress("report", "")
+        clock.now += DIAGNOSTICS_S
+        frame = pd.DataFrame({"estimator": pd.Categorical(list(estimators)), "time_s": [0.0] * len(estimators)})
+        return SimpleNamespace(states=frame, diagnostics=frame, reports={name: _Report(name) for name in estimators})
 
     monkeypatch.setattr(runs, "run_estimators", run_estimators)
 
@@ -62,35 +70,36 @@ def fake(monkeypatch):
 def test_every_stage_is_announced_when_it_starts_and_measured(fake):
     reports = []
     settings = runs.RunSettings(estimators=("three_stage", "full_state_direct"))
-    clock = runs.StageClock(lambda fraction, text: reports.append((fraction, text)),
-                            runs.STAGES_PER_ESTIMATOR * 2 + 2)
+    clock = runs.StageClock(lambda fraction, text: reports.append((fraction, text)), runs.run_steps(2))
     assert runs.replay_and_store(fake, "sha", None, settings, clock=clock) == "run-1"
     assert [text for _, text in reports] == [
-        "Running three_stage (1 of 2) ...", "three_stage (1 of 2): preparing inputs ...",
-        "three_stage (1 of 2): running the filter ...", "three_stage (1 of 2): computing diagnostics ...",
-        "Running full_state_direct (2 of 2) ...", "full_state_direct (2 of 2): preparing inputs ...",
-        "full_state_direct (2 of 2): running the filter ...", "full_state_direct (2 of 2): computing diagnostics ...",
-        "Stacking the tables ...", "Saving the run in the workspace ...", "Done"]
+        "Checking the inputs ...", "Preparing the inputs of three_stage ...",
+        "Preparing the inputs of full_state_direct ...",
+        "Running the filters: three_stage running, full_state_direct waiting",
+        "Running the filters: three_stage running, full_state_direct running",
+        "Running the filters: three_stage done, full_state_direct running",
+        "Running the filters: three_stage done, full_state_direct done",
+        "Computing the diagnostics ...", "Stacking the tables ...", "Saving the run in the workspace ...", "Done"]
     fractions = [fraction for fraction, _ in reports]
     assert fractions == sorted(fractions) and fractions[-1] == 1.0 and fractions[-2] < 1.0
-    measured = dict(clock.measured[:4])
-    assert measured == {"checking inputs": CHECK_S, "preparing inputs": PREPARE_S, "running three_stage": RUN_S,
-                        "computing diagnostics": DIAGNOSTICS_S}
-    assert clock.measured[-1] == (runs.SAVING, SAVE_S)
-    total = 2 * (CHECK_S + PREPARE_S + RUN_S + DIAGNOSTICS_S) + SAVE_S
-    assert clock.summary() == (f"{total:.1f} s: checking inputs 1.0 s, preparing inputs 2.0 s, running three_stage "
-                               "3.0 s, computing diagnostics 4.0 s, running full_state_direct 3.0 s, stacking the "
-                               "tables 0.0 s, saving 4.0 s")
+    assert len(reports) == runs.run_steps(2) + 1  # every step announced, then "Done"
+    assert clock.measured == [("checking inputs", CHECK_S), ("preparing inputs", PREPARE_S),
+                              ("preparing inputs", PREPARE_S), (runs.RUNNING, 5.0),
+                              ("computing diagnostics", DIAGNOSTICS_S), ("stacking the tables", 0.0),
+                              (runs.SAVING, SAVE_S)]
+    assert clock.lanes == {runs.RUNNING: RUN_S}
+    total = CHECK_S + 2 * PREPARE_S + 5.0 + DIAGNOSTICS_S + SAVE_S
+    assert clock.summary() == (f"{total:.1f} s: checking inputs 0.5 s, preparing inputs 2.0 s, running the filters "
+                               "5.0 s (three_stage 3.0 s, full_state_direct 5.0 s), computing diagnostics 2.0 s, "
+                               "stacking the tables 0.0 s, saving 4.0 s")
 
 
-def test_a_replay_on_its_own_ends_with_done_and_a_cold_filter_says_it_compiles(fake, monkeypatch):
+def test_a_replay_on_its_own_ends_with_done_and_a_cold_filter_says_it_compiles_until_it_is_done(fake, monkeypatch):
     monkeypatch.setattr(runs, "prepare_compile", lambda names: "compiling")
     monkeypatch.setattr(runs, "cache_state", lambda names: SimpleNamespace(warm=False))
     texts = []
     runs.replay(None, runs.RunSettings(estimators=("three_stage",)), progress=lambda f, text: texts.append(text))
-    compiling = runs.COMPILE_MESSAGE.capitalize()
-    assert texts == [f"{compiling}: running three_stage (1 of 1) ...",
-                     f"{compiling}: three_stage (1 of 1): preparing inputs ...",
-                     f"{compiling}: three_stage (1 of 1): running the filter ...",
-                     f"{compiling}: three_stage (1 of 1): computing diagnostics ...", "Stacking the tables ...",
-                     "Done"]
+    compiling = f"{runs.COMPILE_MESSAGE.capitalize()} for three_stage"
+    assert texts == [f"{compiling}: checking the inputs ...", f"{compiling}: preparing the inputs of three_stage ...",
+                     f"{compiling}: running the filters: three_stage running", "Running the filters: three_stage done",
+                     "Computing the diagnostics ...", "Stacking the tables ...", "Done"]

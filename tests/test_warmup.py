@@ -142,5 +142,5 @@ def test_dashboard_progress_says_compiling_only_for_a_cold_filter(monkeypatch):
         monkeypatch.setattr(runs, "cache_state", lambda names, warm=warm: CacheState(warm=warm))
         with pytest.raises(_Stop):
             runs.replay(None, runs.RunSettings(), progress=lambda fraction, text: texts.append(text))
-    assert texts == ["Compiling the estimators (first run only): running three_stage (1 of 3) ...",
-                     "Running three_stage (1 of 3) ..."]
+    assert texts == ["Compiling the estimators (first run only) for three_stage, full_state_direct, "
+                     "full_state_indirect: checking the inputs ...", "Checking the inputs ..."]

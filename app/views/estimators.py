@@ -1,8 +1,11 @@
 """Estimators: run the three EKFs (choice of estimators, heading aid, noise) with progress, and compare them with
 the onboard estimate and the ground truth: states, errors, the RMS table (paper Table 2), innovations and NIS."""
 
+import threading
+
 import pandas as pd
 import streamlit as st
+from streamlit.runtime.scriptrunner import add_script_run_ctx, get_script_run_ctx
 
 from app import adapters, comparison, figures, runs, session, tables
 from estimators.api import DEFAULT_ESTIMATORS, ESTIMATORS, UNTRUSTED_PREFIX
@@ -60,9 +63,14 @@ if submitted:
     run_id = runs.find_run(workspace, sha256, settings)
     if run_id is None:
         bar = st.progress(0.0, text="Preparing ...")
-        stage_clock = runs.StageClock(lambda fraction, text: bar.progress(fraction, text=text),
-                                      runs.STAGES_PER_ESTIMATOR * len(settings.estimators) + 2
-                                      + (noise != runs.DEFAULT_NOISE))
+        script_context = get_script_run_ctx()
+
+        def show(fraction: float, text: str) -> None:  # also from the estimators' threads: they draw for this page
+            add_script_run_ctx(threading.current_thread(), script_context)
+            bar.progress(fraction, text=text)
+
+        stage_clock = runs.StageClock(show, runs.run_steps(len(settings.estimators),
+                                                           calibrate=noise != runs.DEFAULT_NOISE))
         with session.input_errors():
             if noise != runs.DEFAULT_NOISE:
                 stage_clock.start("calibrating", "Calibrating the sensors for R ...")
