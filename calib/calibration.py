@@ -338,7 +338,7 @@ def _calibrate_sensor(log: FlightLog, sensor: str, candidates: list[Segment], se
     samples = [(segment, *sensor_samples(log, sensor, segment)) for segment in candidates]
     usable = [item for item in samples if len(item[1]) >= min_samples(MIN_NUMTAPS)]
     if not usable:
-        return (f"{sensor}: skipped, no segment ({', '.join(_span(c) for c in candidates)}) holds enough samples "
+        return (f"{sensor}: skipped, no segment ({', '.join(_span(c, log) for c in candidates)}) holds enough samples "
                 f"(need >= {min_samples(MIN_NUMTAPS)})")
     fitting = [item for item in usable if len(item[1]) >= min_samples(settings.numtaps or MIN_NUMTAPS)]
     segment, time_s, values = (fitting or usable)[0]
@@ -360,7 +360,7 @@ def _calibrate_sensor(log: FlightLog, sensor: str, candidates: list[Segment], se
     figures = noise_figures(values, spec)
     channels = SENSORS[sensor]
     if not all(f.sigma > 0 for f in figures):
-        return f"{sensor}: skipped, constant over the segment {_span(segment)} (no noise to measure)"
+        return f"{sensor}: skipped, constant over the segment {_span(segment, log)} (no noise to measure)"
     return SensorCalibration(
         sensor=sensor, unit=channels.unit, axes=channels.axes, segment=segment, fir=spec, n_samples=len(time_s),
         eta=tuple(f.eta for f in figures), beta=tuple(f.beta for f in figures),
@@ -368,8 +368,12 @@ def _calibrate_sensor(log: FlightLog, sensor: str, candidates: list[Segment], se
         mean=tuple(f.mean for f in figures), warnings=tuple(notes))
 
 
-def _span(segment: Segment) -> str:
-    return f"{segment.start_s:.3f} .. {segment.end_s:.3f} s"
+def _span(segment: Segment, log: FlightLog) -> str:
+    """The segment in seconds since the log start (the dashboard's axes) and on the log clock (the CLI's
+    ``--segment``)."""
+    start_s = log.meta.start_time_s
+    return (f"{segment.start_s - start_s:.1f} .. {segment.end_s - start_s:.1f} s since log start (log clock "
+            f"{segment.start_s:.3f} .. {segment.end_s:.3f} s)")
 
 
 def _allan(log: FlightLog, segment: Segment) -> dict[str, tuple[AllanFigures, ...]]:

@@ -145,6 +145,18 @@ def test_missing_streams_are_skipped_and_no_imu_fails():
         calibrate(log)
 
 
+def test_a_skipped_sensor_names_its_segment_since_the_log_start_and_on_the_log_clock():
+    log = synthetic_log(30.0)
+    log.streams["baro"]["alt_m"] = 480.0  # a stuck barometer: no noise to measure
+    cal = calibrate(log)
+    [warning] = [w for w in cal.warnings if w.startswith("barometer")]
+    segment = cal.sensors["gyroscope"].segment  # the same automatic segment for every sensor
+    start_s = log.meta.start_time_s
+    assert start_s >= 100.0  # the two clocks differ
+    assert (f"constant over the segment {segment.start_s - start_s:.1f} .. {segment.end_s - start_s:.1f} s since "
+            f"log start (log clock {segment.start_s:.3f} .. {segment.end_s:.3f} s)") in warning
+
+
 def test_tables(still_cal):
     table = noise_table(still_cal)
     assert table.loc[("gyroscope", "y"), "sigma"] == still_cal.sensors["gyroscope"].sigma[1]
