@@ -1,5 +1,6 @@
 """``solarnav replay LOG.ulg [--sun SUN.csv] [--device DEV.json] [--calib CALIB.json] [--estimators a,b,c]
-[--rate-hz 50] [--heading mag|sun|mag+sun] [--force] -o OUT.parquet|OUT.csv [--diagnostics DIAG.parquet|DIAG.csv]``:
+[--rate-hz 50] [--heading mag|sun|mag+sun] [--force] [--float32] -o OUT.parquet|OUT.csv
+[--diagnostics DIAG.parquet|DIAG.csv]``:
 re-run the estimators on a log and write their states (one row per estimator per output epoch).
 
 A log whose inputs cannot give a trustworthy estimate (IMU too slow or with long gaps, clipping accelerometer) is
@@ -14,6 +15,7 @@ import math
 import sys
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 import pyarrow
 import pyarrow.csv
@@ -54,6 +56,9 @@ def add_parser(subparsers) -> None:
                         help="absolute heading source (default mag; sun needs --sun)")
     parser.add_argument("--force", action="store_true",
                         help="replay even a log whose inputs are refused (every report carries the warning)")
+    parser.add_argument("--float32", action="store_true",
+                        help="write the states and diagnostics as float32 (about half the file; time_s, lat_deg and "
+                             "lon_deg stay float64: float32 would round them to ms and metres)")
     parser.add_argument("-o", "--output", required=True, metavar="OUT.parquet|OUT.csv", help="states file")
     parser.add_argument("--diagnostics", metavar="DIAG.parquet|DIAG.csv",
                         help="also write one row per measurement update (innovation, variance, NIS, accepted)")
@@ -80,9 +85,10 @@ def run(args: argparse.Namespace) -> int:
     announce_compile([*names, *([SUN_SOLVER] if "sun" in args.heading else [])])
     result = run_estimators(log, estimators=names, config=config, configs=configs, heading=args.heading,
                             rate_hz=args.rate_hz, allow_untrusted=args.force)
-    write_table(result.states, outputs[0])
+    narrow = as_float32 if args.float32 else (lambda frame: frame)
+    write_table(narrow(result.states), outputs[0])
     if args.diagnostics is not None:
-        write_table(result.diagnostics, outputs[1])
+        write_table(narrow(result.diagnostics), outputs[1])
     print(format_summary(result, outputs))
     return 0
 
@@ -102,6 +108,19 @@ def _checked_path(path: str, option: str) -> Path:
     if not out.parent.exists():
         raise InputError(f"directory {str(out.parent)!r} does not exist", field=option)
     return out
+
+
+#: Columns ``--float32`` keeps in float64: the log clock (float32 steps reach 8 ms at 1e5 s) and the geodetic
+#: angles (float32 steps of 8e-6 deg are nearly a metre).
+FLOAT64_COLUMNS = frozenset({"time_s", "lat_deg", "lon_deg"})
+
+
+def as_float32(frame: pd.DataFrame) -> pd.DataFrame:
+    """``frame`` with its float64 columns as float32, except :data:`FLOAT64_COLUMNS` (other columns shared, not
+    copied)."""
+    narrowed = {name: frame[name].astype(np.float32) for name, dtype in frame.dtypes.items()
+                if dtype == np.float64 and name not in FLOAT64_COLUMNS}
+    return frame.assign(**narrowed) if narrowed else frame
 
 
 def write_table(frame: pd.DataFrame, path: Path) -> Path:
