@@ -18,7 +18,7 @@ import pandas as pd
 from app.workspace import Workspace
 from calib.calibration import Calibration
 from estimators.api import DEFAULT_ESTIMATORS, run_estimators
-from estimators.config import EstimatorConfig, config_from_calibration
+from estimators.config import config_from_calibration
 from estimators.warmup import COMPILE_MESSAGE, SUN_SOLVER, cache_state, prepare_compile
 from ingest import FlightLog
 
@@ -242,7 +242,7 @@ def replay(log: FlightLog, settings: RunSettings, calibration: Calibration | Non
     clock.start("checking inputs", say("Checking the inputs ..."))
     configs = (None if calibration is None
                else {name: config_from_calibration(calibration, estimator=name) for name in names})
-    result = run_estimators(log, estimators=names, config=EstimatorConfig(), configs=configs, heading=settings.heading,
+    result = run_estimators(log, estimators=names, configs=configs, heading=settings.heading,
                             rate_hz=settings.rate_hz, allow_untrusted=settings.allow_untrusted, progress=stage)
     clock.start("stacking the tables", "Stacking the tables ...")
     report = {name: dataclasses.asdict(result.reports[name]) for name in names}

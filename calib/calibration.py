@@ -13,9 +13,7 @@ covariance of the gyro INPUT (it enters the filters' Q through G), not a measure
 from __future__ import annotations
 
 import dataclasses
-import os
 from collections.abc import Mapping
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -42,6 +40,7 @@ from calib.tau import DEFAULT_TAU, TauSelection
 from ingest.errors import InputError
 from ingest.flightlog import FlightLog, stream_info
 from ingest.geodesy import geodetic_to_ned
+from ingest.threads import thread_map
 
 NOISE_CHOICES = ("sigma", "eta")
 #: GPS rows below this fix type (3 = 3D fix) carry no usable position.
@@ -261,7 +260,8 @@ def calibrate(log: FlightLog, *, segment: Segment | None = None, fir: Mapping[st
     warnings: list[str] = []
     sensors: dict[str, SensorCalibration] = {}
     names = [name for name, channels in SENSORS.items() if log.has(channels.stream)]
-    results = _threaded(lambda name: _calibrate_sensor(log, name, candidates, fir.get(name, FirSettings())), names)
+    # the filtering and the Allan sums release the GIL: a 1-hour log calibrates in 2.1 s instead of 2.9 s on 2 cores
+    results = thread_map(lambda name: _calibrate_sensor(log, name, candidates, fir.get(name, FirSettings())), names)
     for name, result in zip(names, results, strict=True):
         if isinstance(result, str):
             warnings.append(result)
@@ -384,20 +384,11 @@ def _allan(log: FlightLog, segment: Segment) -> dict[str, tuple[AllanFigures, ..
         if len(time_s) >= ALLAN_MIN_SAMPLES:
             rate_hz = stream_info("imu", time_s).rate_hz
             axes += [(sensor, values[:, k], rate_hz) for k in range(values.shape[1])]
-    figures = _threaded(lambda axis: allan_figures(allan_deviation(axis[1], axis[2])), axes)
+    figures = thread_map(lambda axis: allan_figures(allan_deviation(axis[1], axis[2])), axes)
     out: dict[str, tuple[AllanFigures, ...]] = {}
     for (sensor, _, _), figure in zip(axes, figures, strict=True):
         out[sensor] = (*out.get(sensor, ()), figure)
     return out
-
-
-def _threaded(function, items: list) -> list:
-    """``[function(item) for item in items]``, one thread per CPU: the filtering and the Allan sums run in numpy and
-    scipy code that releases the GIL (a 1-hour log calibrates in 2.1 s instead of 2.9 s on two cores)."""
-    if len(items) < 2:
-        return [function(item) for item in items]
-    with ThreadPoolExecutor(max_workers=min(len(items), os.cpu_count() or 1)) as pool:
-        return list(pool.map(function, items))
 
 
 def allan_curves(log: FlightLog, calibration: Calibration) -> dict[str, list[pd.DataFrame]]:

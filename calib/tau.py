@@ -15,15 +15,14 @@ above 0.5 the innovations are coloured and the chi-square band of the NIS test i
 from __future__ import annotations
 
 import math
-import os
 from collections.abc import Callable
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
 from scipy import optimize, stats
 
 from ingest.errors import InputError
+from ingest.threads import thread_map
 
 #: Search interval of log10 tau (docs/calibration.md, 'Penalty factor tau (eq 52)').
 LOG10_TAU_BOUNDS = (-1.0, 2.0)
@@ -146,8 +145,8 @@ def choose_tau(replay: Callable[[float], Innovations], method: str = "likelihood
 
     lo, hi = LOG10_TAU_BOUNDS
     grid = np.linspace(lo, hi, grid_points)
-    with ThreadPoolExecutor(max_workers=os.cpu_count() or 1) as pool:  # the grid's replays side by side
-        cache.update(zip(map(float, grid), pool.map(lambda g: replay(10.0 ** float(g)), grid), strict=True))
+    # the grid's replays side by side
+    cache.update(zip(map(float, grid), thread_map(lambda g: replay(10.0 ** float(g)), grid), strict=True))
     nll_grid = [neg_log_likelihood(run(float(g))) for g in grid]
     nis_grid = [mean_nis(run(float(g))) for g in grid]
     note = ""

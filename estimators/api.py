@@ -24,10 +24,8 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import os
 import time
 from collections.abc import Callable, Mapping, Sequence
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -49,6 +47,7 @@ from estimators.three_stage.run import run as run_three_stage
 from ingest.errors import InputError
 from ingest.flightlog import FlightLog
 from ingest.quality import REFUSE, QualityFinding, assess_input_quality
+from ingest.threads import thread_map
 
 #: Registry: estimator name -> run function with the signature ``(flight_log, inputs, config) -> EstimatorRun``.
 #: Add an estimator with one import and one line.
@@ -208,12 +207,7 @@ def run_estimators(flight_log: FlightLog, *, estimators: str | Sequence[str] = D
         notify("done", name)
         return run
 
-    workers = min(len(names), os.cpu_count() or 1) if threads is None else max(1, int(threads))
-    if workers > 1:  # the kernels release the GIL (nogil): the estimators run side by side
-        with ThreadPoolExecutor(max_workers=workers, thread_name_prefix="estimator") as pool:
-            runs = list(pool.map(run_one, names))
-    else:
-        runs = [run_one(name) for name in names]
+    runs = thread_map(run_one, names, threads)  # the kernels release the GIL (nogil): side by side
     notify("report", "")
     reports = {name: _checked_report(run, configs[name], {"prepare": prepare_s[name], **run.report.timings_s},
                                      findings, fixed_wing=inputs[name].plan.fixed_wing)
