@@ -32,7 +32,8 @@ PAPER_TABLE_2 = {
 #: Quantities of Table 2, in order.
 QUANTITIES = ("roll_deg", "pitch_deg", "yaw_deg", "position_m", "height_m", "airspeed_m_s", "ground_speed_m_s",
               "course_deg", "wind_m_s")
-#: Course errors are only meaningful above this true ground speed [m/s] (docs/estimators.md, 'Sensor plan').
+#: Course, airspeed and wind errors are only meaningful above this true ground speed [m/s] (in flight;
+#: docs/estimators.md, 'Sensor plan' and 'Wind on the ground').
 MIN_GROUND_SPEED_M_S = 3.0
 
 
@@ -109,16 +110,17 @@ def rms_errors(states: pd.DataFrame, flight_log: FlightLog, *, after_s: float = 
         v_true = truth[["vn_m_s", "ve_m_s", "vd_m_s"]].to_numpy()
         w = group[["wind_n_m_s", "wind_e_m_s"]].to_numpy(dtype=float)
         w_true = truth[["wind_n_m_s", "wind_e_m_s"]].to_numpy()
-        air = np.linalg.norm(v - np.column_stack([w, np.zeros(len(w))]), axis=1)
-        air_true = np.linalg.norm(v_true - np.column_stack([w_true, np.zeros(len(w_true))]), axis=1)
-        row["airspeed_m_s"] = rms(air - air_true)
         vg, vg_true = np.hypot(v[:, 0], v[:, 1]), np.hypot(v_true[:, 0], v_true[:, 1])
         row["ground_speed_m_s"] = rms(vg - vg_true)
+        # on the ground the wind is unobservable (held, or its prior before the first flight)
         moving = vg_true > MIN_GROUND_SPEED_M_S
+        air = np.linalg.norm(v - np.column_stack([w, np.zeros(len(w))]), axis=1)
+        air_true = np.linalg.norm(v_true - np.column_stack([w_true, np.zeros(len(w_true))]), axis=1)
         course = np.degrees(np.arctan2(v[:, 1], v[:, 0]))
         course_true = np.degrees(np.arctan2(v_true[:, 1], v_true[:, 0]))
-        row["course_deg"] = rms(_wrap_deg(course - course_true)[moving]) if moving.any() else float("nan")
-        row["wind_m_s"] = rms(np.linalg.norm(w - w_true, axis=1))
+        for quantity, error in (("airspeed_m_s", air - air_true), ("course_deg", _wrap_deg(course - course_true)),
+                                ("wind_m_s", np.linalg.norm(w - w_true, axis=1))):
+            row[quantity] = rms(error[moving]) if moving.any() else float("nan")
         rows[name] = row
     return pd.DataFrame.from_dict(rows, orient="index").loc[:, list(QUANTITIES)]
 

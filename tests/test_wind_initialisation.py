@@ -128,3 +128,65 @@ def test_reversed_airflow_fraction_counts_backward_epochs():
     # on the ground (air speed below the wing-borne threshold) nothing is judged
     assert math.isnan(reversed_airflow_fraction(_states(yaw, wind + 0.1 * heading, wind)))
     assert math.isnan(reversed_airflow_fraction(_states(yaw, ground, wind).drop(columns="wind_n_m_s")))
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Wind on the ground (docs/estimators.md, 'Wind on the ground')
+# ---------------------------------------------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def paper_log():
+    from ingest.ulog_reader import load_flight_log
+    from tests.conftest import SAMPLE_LOGS_DIR
+
+    return load_flight_log(SAMPLE_LOGS_DIR / "paper.ulg")
+
+
+def _ground_speed_at(flight_log, time_s: np.ndarray) -> np.ndarray:
+    truth = flight_log["truth_local_position"]
+    t = truth.index.to_numpy(dtype=float)
+    return np.interp(time_s, t, np.hypot(truth["vx_m_s"].to_numpy(), truth["vy_m_s"].to_numpy()))
+
+
+def test_a_pitot_on_the_ground_is_not_fused(paper_log):
+    """The bundled mission stands 60 s before the launch and 10 s after the landing in 2.5 m/s wind: with the
+    airspeed threshold below that wind, airspeed samples there (the wind on the pitot) still give no events; in
+    flight every sample does."""
+    from dataclasses import replace
+
+    from estimators.config import EstimatorConfig
+    from estimators.inputs.build import build_replay_inputs
+    from estimators.inputs.records import AIRSPEED
+
+    config = EstimatorConfig()
+    config = replace(config, timing=replace(config.timing, min_airspeed_m_s=1.0))
+    events = build_replay_inputs(paper_log, config).events
+    fused_t = events.time_s[events.kind == AIRSPEED]
+    assert len(fused_t) > 1000
+    assert _ground_speed_at(paper_log, fused_t).min() > 2.0
+    airspeed = paper_log["airspeed"]
+    sample_t = airspeed.index.to_numpy(dtype=float)
+    ground_speed = _ground_speed_at(paper_log, sample_t)
+    assert (airspeed["tas_m_s"].to_numpy()[ground_speed < 0.1] > 1.0).any(), "no pitot reading on the ground"
+    assert len(fused_t) >= 0.99 * (ground_speed > 6.0).sum()
+
+
+@pytest.mark.parametrize("estimator", ["full_state_direct", "full_state_indirect"])
+def test_the_wind_is_held_on_the_ground(paper_log, estimator):
+    """With the wind walk of turbulent air (2 m/s/sqrt(s)) the wind after landing stays at its last estimate: its
+    sigma does not grow and the estimate moves by less than 0.1 m/s (a walk left running would add 2 sqrt(10) =
+    6 m/s of sigma in the 10 s at rest)."""
+    from dataclasses import replace
+
+    from estimators.config import EstimatorConfig
+
+    config = EstimatorConfig()
+    config = replace(config, noise=replace(config.noise, wind_rw_m_s_sqrt_s=2.0))
+    states = run_estimators(paper_log, estimators=[estimator], config=config).states
+    t = states["time_s"].to_numpy()
+    moving = _ground_speed_at(paper_log, t) > 0.1
+    landed = t > t[moving][-1] + 1.5  # after the roll-out and the hold time
+    assert landed.sum() > 100
+    wind = states.loc[landed, ["wind_n_m_s", "wind_e_m_s"]].to_numpy()
+    sigma = states.loc[landed, ["wind_n_m_s_std", "wind_e_m_s_std"]].to_numpy()
+    assert np.ptp(wind, axis=0).max() < 0.1
+    assert np.ptp(sigma, axis=0).max() < 0.01

@@ -31,6 +31,9 @@ EIG_FLOOR = 1e-12
 #: The full positive-definiteness test (Cholesky) runs every this many covariance propagations; the variance
 #: limits every time.
 PD_CHECK_EVERY = 10
+#: The wind random walk runs only while an airspeed or sideslip event (airborne, docs/estimators.md, 'Wind on the
+#: ground') came within this time [s]; on the ground the wind is unobservable and held, not left to drift.
+WIND_HOLD_S = 1.0
 
 
 @njit(cache=True)
@@ -69,6 +72,24 @@ def scalar_innovation(kind, comp, values, variances, h):
     if kind == GPS_VEL and comp == 4:
         nu = rotations.wrap_pi(nu)
     return nu, r_var
+
+
+@njit(cache=True)
+def wind_observed(kind, t, last_t):
+    """Time of the last event that observes the wind (airspeed or sideslip: airborne) after event ``kind`` at
+    ``t`` [s], given the previous one ``last_t``."""
+    return t if kind in (AIRSPEED, SIDESLIP) else last_t
+
+
+@njit(cache=True)
+def held_wind_walk(walk_psd, wind_index):
+    """Copy of the squared random-walk densities ``walk_psd`` with the two wind states (from ``wind_index``; < 0:
+    none) at 0: the walk while the wind is held (:data:`WIND_HOLD_S`)."""
+    held = walk_psd.copy()
+    if wind_index >= 0:
+        held[wind_index] = 0.0
+        held[wind_index + 1] = 0.0
+    return held
 
 
 def shared_settings(inputs: ReplayInputs, config: EstimatorConfig) -> dict:

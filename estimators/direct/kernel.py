@@ -35,7 +35,15 @@ import numpy as np
 from numba import njit
 
 from estimators.core import linalg, reacquisition, recorder, rotations
-from estimators.core.full_state import EIG_FLOOR, PD_CHECK_EVERY, component_range, scalar_innovation
+from estimators.core.full_state import (
+    EIG_FLOOR,
+    PD_CHECK_EVERY,
+    WIND_HOLD_S,
+    component_range,
+    held_wind_walk,
+    scalar_innovation,
+    wind_observed,
+)
 from estimators.core.recorder import (
     C_GPS_RESETS,
     C_OUTPUTS,
@@ -210,10 +218,11 @@ def _output_row(x, P, layout, R_nb, S_euler, W_euler, H, t, out):
 
 
 @njit(cache=True)
-def _flush_covariance(P, x_cov, acc, settings, R_nb, S_euler, W_euler, A, F, Qd, work, mean_gyro, columns,
-                      F_values, F_cols, F_counts, counters):
+def _flush_covariance(P, x_cov, acc, settings, walk_psd, R_nb, S_euler, W_euler, A, F, Qd, work, mean_gyro,
+                      columns, F_values, F_cols, F_counts, counters):
     """Propagate P over the accumulated interval ``acc[0]`` with the mean inputs ``acc[1:7] / acc[0]`` from the
-    state ``x_cov`` that started it; then the variance limits and the scheduled repair.
+    state ``x_cov`` that started it (random walks ``walk_psd``: ``settings.walk_psd``, or its held-wind copy);
+    then the variance limits and the scheduled repair.
 
     Scratch: ``mean_gyro`` (3,); ``columns`` = ``arange(n)`` and the sparse dynamic rows of F ``F_values``,
     ``F_cols`` (N_DYNAMIC, n), ``F_counts`` (N_DYNAMIC,) (:func:`estimators.core.linalg.sparse_rows`)."""
@@ -223,8 +232,7 @@ def _flush_covariance(P, x_cov, acc, settings, R_nb, S_euler, W_euler, A, F, Qd,
         mean_gyro[i] = acc[1 + i] / dt
     model.jacobian(x_cov, mean_gyro, settings.gravity_m_s2, settings.layout, R_nb, S_euler, W_euler, A)
     linalg.transition_matrix(A, dt, F)
-    model.process_noise(x_cov, settings.gyro_psd, settings.accel_psd, settings.walk_psd, dt, R_nb, S_euler, W_euler,
-                        Qd)
+    model.process_noise(x_cov, settings.gyro_psd, settings.accel_psd, walk_psd, dt, R_nb, S_euler, W_euler, Qd)
     linalg.sparse_rows(F, columns, F_values, F_cols, F_counts)
     linalg.propagate_sparse(P, F_values, F_cols, F_counts, work)
     for i in range(n):  # + Qd (symmetric: the diagonal and the velocity/attitude block)
@@ -376,6 +384,9 @@ def run_kernel(imu_gyro, imu_accel, ev_kind, ev_val, ev_var, op, op_dt, op_index
     g = settings.gravity_m_s2
     gps_mon = reacquisition.gps_monitor()
     air_ok = False  # the last airspeed update was accepted (reset_to_gps)
+    held_walk = held_wind_walk(settings.walk_psd, layout[L_W])
+    t_now = -math.inf
+    t_wind_observed = -math.inf
     n_out = 0
     for s in range(op.shape[0]):
         code = op[s]
@@ -389,8 +400,9 @@ def run_kernel(imu_gyro, imu_accel, ev_kind, ev_val, ev_var, op, op_dt, op_index
             linalg.accumulate_inputs(acc, op_dt[s], imu_gyro[k], imu_accel[k])
         elif code == COVARIANCE:
             if acc[0] > 0.0:
-                _flush_covariance(P, x_cov, acc, settings, R_nb, S_euler, W_euler, A, F, Qd, work, mean_gyro,
-                                  columns, F_values, F_cols, F_counts, counters)
+                walk = settings.walk_psd if t_now - t_wind_observed <= WIND_HOLD_S else held_walk
+                _flush_covariance(P, x_cov, acc, settings, walk, R_nb, S_euler, W_euler, A, F, Qd, work,
+                                  mean_gyro, columns, F_values, F_cols, F_counts, counters)
             if not linalg.is_healthy(x, P):
                 linalg.reset_filter(x, P, x_safe, P0)
                 counters[C_RESETS] += 1
@@ -398,6 +410,8 @@ def run_kernel(imu_gyro, imu_accel, ev_kind, ev_val, ev_var, op, op_dt, op_index
             t = op_dt[s]
             j = op_index[s]
             kind = ev_kind[j]
+            t_now = t
+            t_wind_observed = wind_observed(kind, t, t_wind_observed)
             if kind != OUTPUT:
                 air_ok = _update(x, P, kind, ev_val[j], ev_var[j], t, settings, gps_mon, air_ok, x_err, R_nb,
                                  S_euler, W_euler, H, H3, h3, dx, ph, F, work, diag_f, diag_i, counters)

@@ -41,7 +41,15 @@ import numpy as np
 from numba import njit
 
 from estimators.core import linalg, reacquisition, recorder
-from estimators.core.full_state import EIG_FLOOR, PD_CHECK_EVERY, component_range, scalar_innovation
+from estimators.core.full_state import (
+    EIG_FLOOR,
+    PD_CHECK_EVERY,
+    WIND_HOLD_S,
+    component_range,
+    held_wind_walk,
+    scalar_innovation,
+    wind_observed,
+)
 from estimators.core.recorder import (
     C_GPS_RESETS,
     C_OUTPUTS,
@@ -133,7 +141,7 @@ def kernel_work(settings):
 
 
 @njit(cache=True)
-def flush_covariance(P, settings, w, counters):
+def flush_covariance(P, settings, walk_psd, w, counters):
     """Propagate P over the accumulated interval ``w.acc[0]`` with the mean inputs ``w.acc[1:7] / w.acc[0]``, from
     the nominal ``w.x_cov`` at its start (:func:`estimators.indirect.model.transition`,
     :func:`estimators.core.linalg.propagate_sparse`, then :func:`estimators.indirect.model.add_process_noise`);
@@ -148,7 +156,7 @@ def flush_covariance(P, settings, w, counters):
     m.process_noise(w.F_full, w.imu_psd[0], w.imu_psd[1], dt, w.Q_dyn)
     linalg.sparse_rows(w.F_full, settings.sel, w.F_values, w.F_cols, w.F_counts)
     linalg.propagate_sparse(P, w.F_values, w.F_cols, w.F_counts, w.work)
-    m.add_process_noise(P, w.Q_dyn, settings.walk_psd, dt)
+    m.add_process_noise(P, w.Q_dyn, walk_psd, dt)
     counters[C_FLUSHES] += 1
     if linalg.scheduled_repair(P, settings.min_var, settings.max_var, w.work, EIG_FLOOR, counters[C_FLUSHES],
                                PD_CHECK_EVERY):
@@ -366,6 +374,9 @@ def run_kernel(imu_gyro, imu_accel, ev_kind, ev_imu, ev_val, ev_var, op, op_dt, 
         if s.sel[a] == m.E_W:
             wind_active = True
             aw = a
+    held_walk = held_wind_walk(s.walk_psd, aw)
+    t_now = -math.inf
+    t_wind_observed = -math.inf
     last_row = imu_gyro.shape[0] - 1
     n_out = 0
     for step in range(op.shape[0]):
@@ -378,13 +389,16 @@ def run_kernel(imu_gyro, imu_accel, ev_kind, ev_imu, ev_val, ev_var, op, op_dt, 
             linalg.accumulate_inputs(acc, op_dt[step], imu_gyro[k], imu_accel[k])
         elif code == COVARIANCE:
             if acc[0] > 0.0:
-                flush_covariance(P, s, w, counters)
+                flush_covariance(P, s, s.walk_psd if t_now - t_wind_observed <= WIND_HOLD_S else held_walk, w,
+                                 counters)
             _check_health(x, P, x_safe, s.P0, w.zero_error, counters)
         elif code == EVENT:
             j = op_index[step]
             t = op_dt[step]
             kind = ev_kind[j]
             values = ev_val[j]
+            t_now = t
+            t_wind_observed = wind_observed(kind, t, t_wind_observed)
             if kind == OUTPUT:
                 _check_health(x, P, x_safe, s.P0, w.zero_error, counters)
                 x_safe[:] = x

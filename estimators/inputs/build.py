@@ -187,8 +187,12 @@ def build_replay_inputs(flight_log: FlightLog, config: EstimatorConfig | None = 
             airspeed = None
         else:
             flying = tas > config.timing.min_airspeed_m_s
+            if fixed_wing:  # a pitot on the ground reads the wind, not flight through the air
+                flying &= _airborne(tas_t, airspeed, gps, config)
             if not flying.any():
-                skipped["airspeed"] = f"never above {config.timing.min_airspeed_m_s} m/s"
+                skipped["airspeed"] = (f"never above {config.timing.min_airspeed_m_s} m/s"
+                                       + (f" with a ground speed above {config.timing.min_ground_speed_m_s} m/s"
+                                          if fixed_wing else ""))
                 airspeed = None
             else:
                 parts.append((tas_t[flying], AIRSPEED, tas[flying, None],
@@ -507,15 +511,22 @@ def _pseudo_times(t_start: float, t_end: float, rate_hz: float) -> np.ndarray:
 
 
 def _airborne(times: np.ndarray, airspeed, gps: GpsRows | None, config: EstimatorConfig) -> np.ndarray:
-    """Flying (fixed-wing models valid) at ``times``: last airspeed above the minimum, else GPS ground speed above
-    V_min (docs/estimators.md, 'Sensor plan')."""
-    if airspeed is not None:
-        t, value, threshold = airspeed[0], airspeed[1][:, 0], config.timing.min_airspeed_m_s
-    elif gps is not None:
-        t, value = gps.time_s, np.hypot(gps.vel_ned[:, 0], gps.vel_ned[:, 1])
-        threshold = config.timing.min_ground_speed_m_s
-    else:
+    """Flying (fixed-wing models valid) at ``times``: the last airspeed above the minimum and the last GPS ground
+    speed above V_min; either alone when the other sensor is missing (docs/estimators.md, 'Sensor plan'). The ground
+    speed rule keeps a pitot on the ground, which reads the wind, from being taken for flight."""
+    if airspeed is None and gps is None:
         return np.zeros(len(times), dtype=bool)
+    result = np.ones(len(times), dtype=bool)
+    if airspeed is not None:
+        result &= _last_above(times, airspeed[0], airspeed[1][:, 0], config.timing.min_airspeed_m_s)
+    if gps is not None:
+        result &= _last_above(times, gps.time_s, np.hypot(gps.vel_ned[:, 0], gps.vel_ned[:, 1]),
+                              config.timing.min_ground_speed_m_s)
+    return result
+
+
+def _last_above(times: np.ndarray, t: np.ndarray, value: np.ndarray, threshold: float) -> np.ndarray:
+    """The last sample of ``value`` (at ``t``) at or before each of ``times`` exceeds ``threshold``."""
     i = np.searchsorted(t, times, side="right") - 1
     valid = i >= 0
     result = np.zeros(len(times), dtype=bool)
