@@ -101,6 +101,10 @@ KNOBS = (
     Knob("baro_noise", 0.02, 20.0, "baro", _FULL, "has_baro"),
     Knob("mag_noise", 2e-4, 0.3, "mag", needs="has_mag"),
     Knob("airspeed_noise", 0.02, 5.0, "airspeed", _FULL, "has_airspeed"),
+    # the zero-sideslip pseudo-measurement's error is the aircraft's real sideslip (turns, gusts before the
+    # weathercock settles), correlated over a turn: like the GPS position the likelihood would shrink it without
+    # end, so it is floored at 0.2 m/s, about 1 deg of sideslip at 12 m/s (a well-coordinated small fixed wing)
+    Knob("sideslip_noise", 0.2, 3.0, "sideslip", _FULL, "has_airspeed"),
     # GPS position error is correlated over minutes: short-term innovations would shrink its figure far below the
     # receiver's own accuracy estimate, which is the floor kept here (a fifth of it).
     Knob("gps_pos_noise_scale", 0.2, 5.0, "gps_pos.ne", needs="has_gps"),
