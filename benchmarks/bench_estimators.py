@@ -143,7 +143,7 @@ def filterpy_direct_us_per_sample(log, seconds: float, *, covariance_every_sampl
     """
     from filterpy.kalman import ExtendedKalmanFilter
 
-    config = EstimatorConfig()
+    config = EstimatorConfig(mag_fusion="vector")  # the three-axis magnetometer model of measurements.measurement
     inputs = build.build_replay_inputs(log, config)
     t0 = inputs.imu.time_s[0]
     keep_imu = inputs.imu.time_s <= t0 + seconds
@@ -195,7 +195,7 @@ def filterpy_direct_us_per_sample(log, seconds: float, *, covariance_every_sampl
         elif op[s] == EVENT:
             j = op_index[s]
             kind, values = ev.kind[j], ev.values[j]
-            c0, c1 = full_state.component_range(kind, values, False, 3.0)
+            c0, c1 = full_state.component_range(kind, values, False, 3.0, settings.mag_heading)
             for c in range(c0, c1):  # (no sun events with the default magnetometer heading)
                 h = measurements.measurement(ekf.x.reshape(n), kind, c, values, field, layout, R_nb, S_euler, W_euler,
                                              H)

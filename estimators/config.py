@@ -308,6 +308,12 @@ class EstimatorConfig:
     gps_velocity_mode : str
         ``"ned"`` (default, docs/direct.md, 'Measurement models') or ``"paper"`` (ground speed and course, eqs 42-43
         corrected).
+    mag_fusion : str
+        How the full-state filters fuse the magnetometer (docs/estimators.md, 'Magnetometer heading fusion'):
+        ``"vector"`` (its three axes), ``"heading"`` (the heading of the tilt-compensated field, PX4 EKF2's heading
+        fusion: the magnetometer corrects yaw and its bias, never roll and pitch, which a field disturbed by panel or
+        motor currents would pull) or ``"auto"`` (default: the heading when the log's field strength spreads by more
+        than ``estimators.inputs.build.MAG_HEADING_SPREAD``, else the vector).
     calibrated : CalibratedInputs
         Biases, eq 52 tau and stage-1 weighting from a calibration (defaults: none).
     """
@@ -321,6 +327,7 @@ class EstimatorConfig:
     mag_bias_states: bool = True
     baro_bias_state: bool = True
     gps_velocity_mode: str = "ned"
+    mag_fusion: str = "auto"
     calibrated: CalibratedInputs = field(default_factory=CalibratedInputs)
 
     def __post_init__(self):
@@ -463,3 +470,5 @@ def validate_config(config: EstimatorConfig) -> None:
     if config.gps_velocity_mode not in ("ned", "paper"):
         raise InputError(f"must be 'ned' or 'paper', got {config.gps_velocity_mode!r}",
                          field="gps_velocity_mode")
+    if config.mag_fusion not in ("auto", "heading", "vector"):
+        raise InputError(f"must be 'auto', 'heading' or 'vector', got {config.mag_fusion!r}", field="mag_fusion")

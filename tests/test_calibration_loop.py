@@ -388,19 +388,31 @@ def test_calibrate_tune_budget_below_two_is_refused(tmp_path, capsys):
 # --- in-flight biases only from a consistent error-state replay --------------------------------------------------
 
 
-def test_inflight_bias_is_refused_when_the_replay_gps_channels_are_inconsistent():
-    """The disturbed magnetometer of ``mag_disturbed`` pulls the error-state filter's tilt, which its accelerometer
-    bias states then explain (measured: ba_x -0.76 m/s^2 with a posterior std of 0.01, GPS-velocity north mean NIS
-    71): those biases are not used, the three-stage filter falls back to the still-segment bias. On the calm
-    ``paper`` flight every GPS channel is consistent and the in-flight biases are used."""
+def test_inflight_bias_is_refused_when_the_replay_gps_channels_are_inconsistent(monkeypatch):
+    """The disturbed magnetometer of ``mag_disturbed``, fused as a vector, pulls the error-state filter's tilt,
+    which its accelerometer bias states then explain (measured: ba_x -0.76 m/s^2 with a posterior std of 0.01,
+    GPS-velocity north mean NIS 71): those biases are not used, the three-stage filter falls back to the
+    still-segment bias. Fused as a heading (the automatic choice on this log) the replay is consistent and its
+    biases are used. On the calm ``paper`` flight every GPS channel is consistent and the in-flight biases are
+    used."""
+    import estimators.calibration_replay as calibration_replay
+
     disturbed = _sim_log("mag_disturbed")
     cal = calibrate(disturbed, gravity=local_gravity(disturbed))
-    config = config_from_calibration(cal)
-    run = run_estimators(disturbed, estimators="full_state_indirect", config=config,
-                         rate_hz=1.0).reports["full_state_indirect"]
-    worst_gps = max(c["mean_nis"] for c in run.details["consistency"] if c["channel"].startswith("gps_"))
-    assert worst_gps > 3.0
+
+    def worst_gps_nis(config):
+        run = run_estimators(disturbed, estimators="full_state_indirect", config=config,
+                             rate_hz=1.0).reports["full_state_indirect"]
+        return max(c["mean_nis"] for c in run.details["consistency"] if c["channel"].startswith("gps_"))
+
+    assert worst_gps_nis(config_from_calibration(cal)) < 3.0
+    assert inflight_bias(disturbed, cal) is not None
+    vector = dataclasses.replace(config_from_calibration(cal), mag_fusion="vector")
+    assert worst_gps_nis(vector) > 3.0
+    monkeypatch.setattr(calibration_replay, "config_from_calibration",
+                        lambda c: dataclasses.replace(config_from_calibration(c), mag_fusion="vector"))
     assert inflight_bias(disturbed, cal) is None
+    monkeypatch.undo()
 
     calm = _sim_log("paper")
     calm_cal = calibrate(calm, gravity=local_gravity(calm))

@@ -31,17 +31,26 @@ EIG_FLOOR = 1e-12
 #: The full positive-definiteness test (Cholesky) runs every this many covariance propagations; the variance
 #: limits every time.
 PD_CHECK_EVERY = 10
+#: Component id of the magnetometer heading (``mag.psi`` in the diagnostics; docs/estimators.md, 'Magnetometer
+#: heading fusion').
+MAG_HEADING = 3
+#: Smallest horizontal component of the unit field (measured or reference) for a heading [-]: 0.05, an inclination
+#: of 87 deg, where one field-unit of noise is 20 rad of heading.
+MIN_HORIZONTAL_FIELD = 0.05
 #: The wind random walk runs only while an airspeed or sideslip event (airborne, docs/estimators.md, 'Wind on the
 #: ground') came within this time [s]; on the ground the wind is unobservable and held, not left to drift.
 WIND_HOLD_S = 1.0
 
 
 @njit(cache=True)
-def component_range(kind, values, paper_vel, vmin):
+def component_range(kind, values, paper_vel, vmin, mag_heading):
     """First and last+1 component of an event (GPS velocity in paper mode: ground speed and course, none when
-    the GPS ground speed is below ``vmin``)."""
+    the GPS ground speed is below ``vmin``; the magnetometer as its heading, :data:`MAG_HEADING`, with
+    ``mag_heading``, else its three axes)."""
     if kind in (BARO, AIRSPEED, SIDESLIP):
         return 0, 1
+    if kind == MAG and mag_heading:
+        return MAG_HEADING, MAG_HEADING + 1
     if kind == SUN:
         return 0, 2
     if kind == GPS_VEL and paper_vel:
@@ -72,6 +81,30 @@ def scalar_innovation(kind, comp, values, variances, h):
     if kind == GPS_VEL and comp == 4:
         nu = rotations.wrap_pi(nu)
     return nu, r_var
+
+
+@njit(cache=True)
+def mag_heading_innovation(R_nb, m0, m1, m2, variances, field_ned, grad_bias):
+    """Heading innovation of a magnetometer sample (docs/estimators.md, 'Magnetometer heading fusion').
+
+    ``(m0, m1, m2)`` the bias-corrected body field [field units], rotated into NED with the estimate's attitude
+    ``R_nb`` (body to NED); the innovation is minus the angle, about the NED down axis, from the reference field's
+    horizontal part ``field_ned[:2]`` to the rotated measurement's: the measured heading minus the estimated one. It
+    depends on the yaw with slope -1 (H on yaw +1) and on the bias through ``grad_bias`` (3,), written here as the
+    H row of the bias ``d angle / d b_m``; the estimated roll and pitch only rotate the measurement into the
+    horizontal plane and are not corrected by it. Variance: the mean per-axis variance of ``variances[:3]`` over the
+    squared horizontal field. Returns ``(nu, r_var)``; NaN for a field too steep for a heading
+    (:data:`MIN_HORIZONTAL_FIELD`)."""
+    cn = R_nb[0, 0] * m0 + R_nb[0, 1] * m1 + R_nb[0, 2] * m2
+    ce = R_nb[1, 0] * m0 + R_nb[1, 1] * m1 + R_nb[1, 2] * m2
+    an, ae = field_ned[0], field_ned[1]
+    c2 = cn * cn + ce * ce
+    if c2 < MIN_HORIZONTAL_FIELD ** 2 or an * an + ae * ae < MIN_HORIZONTAL_FIELD ** 2:
+        return math.nan, math.nan
+    angle = math.atan2(an * ce - ae * cn, an * cn + ae * ce)
+    for j in range(3):  # d atan2(ce, cn) / d(cn, ce) = (-ce, cn) / c2, d(cn, ce) / d b = -R_nb[:2, j]
+        grad_bias[j] = (ce * R_nb[0, j] - cn * R_nb[1, j]) / c2
+    return -angle, (variances[0] + variances[1] + variances[2]) / 3.0 / c2
 
 
 @njit(cache=True)
@@ -108,6 +141,7 @@ def shared_settings(inputs: ReplayInputs, config: EstimatorConfig) -> dict:
         "gps_outage_s": float(config.timing.gps_outage_reset_s),
         "min_ground_speed_m_s": float(config.timing.min_ground_speed_m_s),
         "paper_gps_velocity": config.gps_velocity_mode == "paper",
+        "mag_heading": inputs.plan.mag_fusion == "heading",
         "gates": gates_per_kind(config),
     }
 

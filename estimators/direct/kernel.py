@@ -37,6 +37,7 @@ from numba import njit
 from estimators.core import linalg, reacquisition, recorder, rotations
 from estimators.core.full_state import (
     EIG_FLOOR,
+    MAG_HEADING,
     PD_CHECK_EVERY,
     WIND_HOLD_S,
     component_range,
@@ -55,9 +56,9 @@ from estimators.core.recorder import (
 )
 from estimators.core.schedule import COVARIANCE, EVENT, PROPAGATE
 from estimators.direct import model
-from estimators.direct.measurements import h_gps_velocity, measurement
-from estimators.direct.model import I_P, I_TH, I_V, L_W, N_DYNAMIC, euler_matrices
-from estimators.inputs.records import AIRSPEED, BARO, GPS_POS, GPS_VEL, OUTPUT, SUN
+from estimators.direct.measurements import h_gps_velocity, mag_heading, measurement
+from estimators.direct.model import I_P, I_TH, I_V, L_BM, L_W, N_DYNAMIC, euler_matrices
+from estimators.inputs.records import AIRSPEED, BARO, GPS_POS, GPS_VEL, MAG, OUTPUT, SUN
 from estimators.sun.measurement import sun_tangent_basis, tangent_projection
 
 #: Columns of the kernel's per-epoch output array.
@@ -89,6 +90,7 @@ class DirectSettings(NamedTuple):
     gps_outage_s: float  # GPS back after an outage this long -> position/velocity reset [s]
     min_ground_speed_m_s: float  # no course updates below this GPS ground speed (paper mode)
     paper_gps_velocity: bool  # GPS velocity as ground speed and course
+    mag_heading: bool  # the magnetometer fused as its heading (else its three axes)
     gates: np.ndarray  # (n_kinds,) scalar gate per event kind (inf: ungated)
     x0: np.ndarray  # (n,) initial state
     P0: np.ndarray  # (n, n) initial covariance (also the covariance of a divergence reset)
@@ -277,7 +279,8 @@ def _update(x, P, kind, values, variances, t, settings, gps_mon, air_ok, x_err, 
     field = settings.field_ned
     paper_indirect = settings.paper_indirect
     gate = settings.gates[kind]
-    c0, c1 = component_range(kind, values, settings.paper_gps_velocity, settings.min_ground_speed_m_s)
+    c0, c1 = component_range(kind, values, settings.paper_gps_velocity, settings.min_ground_speed_m_s,
+                             settings.mag_heading)
     if kind == SUN:
         # tangent basis of the predicted sun direction at the prior
         for c in range(3):
@@ -297,6 +300,10 @@ def _update(x, P, kind, values, variances, t, settings, gps_mon, air_ok, x_err, 
                         H3[cc, i] = H[i]
             nu = tangent_projection(basis, c, values, h3, H3, H)
             r_var = variances[c]
+        elif c == MAG_HEADING and kind == MAG:
+            nu, r_var = mag_heading(x, values, variances, field, layout[L_BM], R_nb, S_euler, W_euler, H)
+            if not math.isfinite(nu):
+                continue
         else:
             h = measurement(x, kind, c, values, field, layout, R_nb, S_euler, W_euler, H)
             nu, r_var = scalar_innovation(kind, c, values, variances, h)

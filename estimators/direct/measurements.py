@@ -30,6 +30,7 @@ import math
 
 from numba import njit
 
+from estimators.core.full_state import mag_heading_innovation
 from estimators.direct.model import I_P, I_TH, I_V, L_BB, L_BM, L_W, euler_matrices
 from estimators.inputs.records import AIRSPEED, BARO, GPS_POS, GPS_VEL, MAG, SIDESLIP, ZERO_VELOCITY
 
@@ -186,6 +187,26 @@ def h_body_vector(x, ref_ned, comp, bias_first, R_nb, S_euler, W_euler, H):
         H[bias_first + comp] = 1.0
         h += x[bias_first + comp]
     return h
+
+
+@njit(cache=True)
+def mag_heading(x, values, variances, field, bias_first, R_nb, S_euler, W_euler, H):
+    """Magnetometer heading update (:func:`estimators.core.full_state.mag_heading_innovation`): returns
+    ``(nu, r_var)`` and fills ``H``: 1 on the yaw (a rotation about NED down changes the ZYX yaw by the same
+    angle), the bias gradient on ``b_m`` (``bias_first`` its first state, < 0: none), 0 on roll and pitch."""
+    _zero(H)
+    euler_matrices(x[I_TH], x[I_TH + 1], x[I_TH + 2], R_nb, S_euler, W_euler)
+    if bias_first >= 0:
+        b0, b1, b2 = x[bias_first], x[bias_first + 1], x[bias_first + 2]
+        grad = H[bias_first:bias_first + 3]
+    else:
+        b0, b1, b2 = 0.0, 0.0, 0.0
+        grad = H[I_P:I_P + 3]  # scratch, cleared below
+    nu, r_var = mag_heading_innovation(R_nb, values[0] - b0, values[1] - b1, values[2] - b2, variances, field, grad)
+    if bias_first < 0:
+        _zero(H)
+    H[I_TH + 2] = 1.0
+    return nu, r_var
 
 
 @njit(cache=True)

@@ -43,6 +43,7 @@ from numba import njit
 from estimators.core import linalg, reacquisition, recorder
 from estimators.core.full_state import (
     EIG_FLOOR,
+    MAG_HEADING,
     PD_CHECK_EVERY,
     WIND_HOLD_S,
     component_range,
@@ -61,8 +62,8 @@ from estimators.core.recorder import (
 )
 from estimators.core.schedule import COVARIANCE, EVENT, PROPAGATE
 from estimators.indirect import model as m
-from estimators.indirect.measurements import measurement
-from estimators.inputs.records import AIRSPEED, GPS_POS, GPS_VEL, OUTPUT, SUN
+from estimators.indirect.measurements import mag_heading, measurement
+from estimators.inputs.records import AIRSPEED, GPS_POS, GPS_VEL, MAG, OUTPUT, SUN
 from estimators.sun.measurement import sun_tangent_basis, tangent_projection
 
 # counters: the shared slots of estimators.core.recorder (C_DIAG .. C_OUTPUTS), then this filter's
@@ -88,6 +89,7 @@ class IndirectSettings(NamedTuple):
     gps_outage_s: float  # GPS back after an outage this long -> position/velocity reset [s]
     min_ground_speed_m_s: float  # no course update below this GPS ground speed (paper GPS velocity)
     paper_gps_velocity: bool  # GPS velocity as ground speed and course
+    mag_heading: bool  # the magnetometer fused as its heading (else its three axes)
     gates: np.ndarray  # (n_kinds,) scalar gate per event kind (inf: ungated)
     x0: np.ndarray  # (NX,) initial nominal state
     P0: np.ndarray  # (n, n) initial covariance of the active error states
@@ -290,7 +292,7 @@ def _update(x, P, t, kind, values, variances, gyro, settings, w, gps_mon, diag_f
     n = sel.shape[0]
     field, lever, H_full, H3, h3, dx = s.field_ned, s.lever_arm_m, w.H_full, w.H3, w.h3, w.dx
     is_gps = kind in (GPS_POS, GPS_VEL)
-    c0, c1 = component_range(kind, values, s.paper_gps_velocity, s.min_ground_speed_m_s)
+    c0, c1 = component_range(kind, values, s.paper_gps_velocity, s.min_ground_speed_m_s, s.mag_heading)
     if kind == SUN:
         for c in range(3):
             h3[c] = measurement(x, kind, c, values, field, lever, gyro, H_full)
@@ -308,6 +310,10 @@ def _update(x, P, t, kind, values, variances, gyro, settings, w, gps_mon, diag_f
                     H3[cc, :] = H_full
             nu = tangent_projection(basis, c, values, h3, H3, H_full)
             r_var = variances[c]
+        elif c == MAG_HEADING and kind == MAG:
+            nu, r_var = mag_heading(x, values, variances, field, w.block3, H_full)
+            if not math.isfinite(nu):
+                continue
         else:
             h = measurement(x, kind, c, values, field, lever, gyro, H_full)
             nu, r_var = scalar_innovation(kind, c, values, variances, h)

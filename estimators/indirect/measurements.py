@@ -14,7 +14,8 @@ import math
 import numpy as np
 from numba import njit
 
-from estimators.core.rotations import rotate
+from estimators.core.full_state import mag_heading_innovation
+from estimators.core.rotations import dcm_into, rotate
 from estimators.indirect.model import E_BB, E_BG, E_BM, E_P, E_TH, E_V, E_W, X_BB, X_BG, X_BM, X_P, X_Q, X_V, X_W
 from estimators.inputs.records import AIRSPEED, BARO, GPS_POS, GPS_VEL, MAG, SIDESLIP, ZERO_VELOCITY
 
@@ -167,6 +168,21 @@ def h_body_vector(x, ref_ned, axis, with_mag_bias, H):
         H[E_BM + axis] = 1.0
         value += x[X_BM + axis]
     return value
+
+
+@njit(cache=True)
+def mag_heading(x, values, variances, field, R_nb, H):
+    """Magnetometer heading update (:func:`estimators.core.full_state.mag_heading_innovation`): returns
+    ``(nu, r_var)`` and fills ``H`` over all NE error states: the NED-down component of the body-frame attitude
+    error (row 3 of ``R_nb``, written here from the nominal quaternion) and the bias gradient on ``db_m``; no
+    roll or pitch part (``R_nb`` (3, 3) scratch)."""
+    H[:] = 0.0
+    dcm_into(x[X_Q], x[X_Q + 1], x[X_Q + 2], x[X_Q + 3], R_nb)
+    nu, r_var = mag_heading_innovation(R_nb, values[0] - x[X_BM], values[1] - x[X_BM + 1], values[2] - x[X_BM + 2],
+                                       variances, field, H[E_BM:E_BM + 3])
+    for j in range(3):  # R (I + [dtheta]x) = (I + [R dtheta]x) R: the yaw error is (R dtheta)_down
+        H[E_TH + j] = R_nb[2, j]
+    return nu, r_var
 
 
 @njit(cache=True)

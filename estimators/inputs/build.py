@@ -69,6 +69,10 @@ GPS_ORIGIN_MAX_EPH_M = 5.0
 #: Magnetometer stream accepted when its median field strength lies in this range [gauss] (docs/estimators.md, 'Sensor
 #: plan').
 MAG_STRENGTH_RANGE_GAUSS = (0.15, 1.0)
+#: Spread of the measured field strength (1st to 99th percentile, relative to the median) above which the automatic
+#: rule fuses the magnetometer as a heading: 12 %, a disturbance of +-6 % of the field, which in a three-axis update
+#: tilts the reference by up to 3.4 deg (docs/estimators.md, 'Magnetometer heading fusion').
+MAG_HEADING_SPREAD = 0.12
 #: Horizontal accuracy assumed when a receiver reports none [m] (Table 1: NEO-M8N 2.5 m).
 GPS_DEFAULT_EPH_M = 2.5
 #: Seconds of GPS used to estimate the barometer offset (docs/three_stage.md, 'Pre-processing').
@@ -161,9 +165,11 @@ def build_replay_inputs(flight_log: FlightLog, config: EstimatorConfig | None = 
         elif not use_mag:
             skipped["mag"] = f"heading source is {heading!r}"
             mag = None
+    mag_fusion = "none"
     if mag is not None:
         mag_strength = strength
         mag_field, mag_field_source = _earth_field_unit(flight_log, origin, mag, imu, config, warnings)
+        mag_fusion = _mag_fusion(mag[1], strength, config, degradations)
         values = mag[1] / mag_strength
         mag_sigma = config.noise.mag_sigma_axes or (config.noise.mag_sigma,) * 3
         parts.append((mag[0], MAG, values, np.broadcast_to(np.square(mag_sigma), values.shape).copy()))
@@ -229,7 +235,7 @@ def build_replay_inputs(flight_log: FlightLog, config: EstimatorConfig | None = 
     used = tuple(SENSOR_NAMES[k] for k in range(OUTPUT) if events.count(k) > 0)
     plan = SensorPlan(fixed_wing=fixed_wing, has_gps=gps is not None, has_baro=baro is not None,
                       has_mag=mag is not None, has_airspeed=airspeed is not None, has_sun=has_sun, used=used,
-                      skipped=skipped, degradations=tuple(degradations))
+                      skipped=skipped, degradations=tuple(degradations), mag_fusion=mag_fusion)
     return ReplayInputs(imu=imu, events=events, origin=origin, plan=plan, alignment=alignment,
                         mag_field_ned=mag_field, mag_strength_gauss=mag_strength, mag_field_source=mag_field_source,
                         gravity_m_s2=gravity, gps_delay_s=gps_delay_s,
@@ -504,6 +510,24 @@ def _check_epoch_count(t_start: float, t_end: float, rate_hz: float, n_imu: int,
     if not n_epochs <= MAX_EPOCHS_PER_IMU_SAMPLE * n_imu + MAX_EPOCHS_FIXED:
         raise InputError(f"the IMU time axis spans {t_end - t_start:.6g} s for only {n_imu} samples: {n_epochs:.3g} "
                          f"epochs at {rate_hz:g} Hz is implausible (corrupt timestamps)", source=source, field="imu")
+
+
+def _mag_fusion(field_gauss: np.ndarray, strength_gauss: float, config: EstimatorConfig,
+                degradations: list[str]) -> str:
+    """``"heading"`` or ``"vector"`` (docs/estimators.md, 'Magnetometer heading fusion'): ``config.mag_fusion``, or
+    with ``"auto"`` the heading when the measured field strength spreads (1st to 99th percentile) by more than
+    :data:`MAG_HEADING_SPREAD` of its median, a disturbance that would pull roll and pitch by more than 3 deg;
+    a degradation line says why."""
+    if config.mag_fusion != "auto":
+        return config.mag_fusion
+    low, high = np.percentile(np.linalg.norm(field_gauss, axis=1), (1.0, 99.0))
+    spread = float((high - low) / strength_gauss)
+    if spread <= MAG_HEADING_SPREAD:
+        return "vector"
+    degradations.append(f"magnetometer fused as its heading only: the field strength spreads by {spread:.0%} "
+                        f"(1st-99th percentile) of its median, more than {MAG_HEADING_SPREAD:.0%}: a disturbed field "
+                        "(currents, motors) would pull roll and pitch")
+    return "heading"
 
 
 def _pseudo_times(t_start: float, t_end: float, rate_hz: float) -> np.ndarray:

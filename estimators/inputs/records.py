@@ -38,7 +38,7 @@ OUTPUT = 8
 #: Sensor name per kind (the ``sensor`` column of the diagnostics).
 SENSOR_NAMES = ("baro", "airspeed", "sideslip", "gps_pos", "gps_vel", "mag", "sun", "zero_velocity", "output")
 #: Component names per kind (the ``component`` column of the diagnostics), indexed by the kernels' component id.
-COMPONENT_NAMES = (("alt",), ("tas",), ("v",), ("n", "e", "d"), ("n", "e", "d", "vg", "chi"), ("x", "y", "z"),
+COMPONENT_NAMES = (("alt",), ("tas",), ("v",), ("n", "e", "d"), ("n", "e", "d", "vg", "chi"), ("x", "y", "z", "psi"),
                    ("t1", "t2"), ("n", "e", "d"), ())
 #: Width of the event value and variance arrays.
 N_EVENT_VALUES = 6
@@ -184,6 +184,9 @@ class SensorPlan:
         Sensor -> why it is not used.
     degradations : tuple of str
         Degraded modes applied, in words.
+    mag_fusion : str
+        How the full-state filters fuse the magnetometer: ``"heading"`` or ``"vector"`` (``"none"`` without one;
+        docs/estimators.md, 'Magnetometer heading fusion').
     """
 
     fixed_wing: bool
@@ -195,6 +198,7 @@ class SensorPlan:
     used: tuple[str, ...]
     skipped: dict[str, str]
     degradations: tuple[str, ...]
+    mag_fusion: str = "none"
 
 
 @dataclass(frozen=True)
