@@ -106,9 +106,9 @@ KNOBS = (
     # end, so it is floored at 0.2 m/s, about 1 deg of sideslip at 12 m/s (a well-coordinated small fixed wing)
     Knob("sideslip_noise", 0.2, 3.0, "sideslip", _FULL, "has_airspeed"),
     # GPS position error is correlated over minutes: short-term innovations would shrink its figure far below the
-    # receiver's own accuracy estimate, which is the floor kept here (a fifth of it).
-    Knob("gps_pos_noise_scale", 0.2, 5.0, "gps_pos.ne", needs="has_gps"),
-    Knob("gps_hgt_noise_scale", 0.2, 5.0, "gps_pos.d", needs="has_gps"),
+    # receiver's own accuracy estimate, which is the floor (the scale only inflates it, e.g. for multipath).
+    Knob("gps_pos_noise_scale", 1.0, 5.0, "gps_pos.ne", needs="has_gps"),
+    Knob("gps_hgt_noise_scale", 1.0, 5.0, "gps_pos.d", needs="has_gps"),
     Knob("gps_vel_noise_scale", 0.1, 10.0, "gps_vel", needs="has_gps"),
     Knob("accel_stage1_floor", 0.02, 2.0, "accel", ("three_stage",)),
     Knob("accel_tau", 0.1, 100.0, None, ("three_stage",)),
