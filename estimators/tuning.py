@@ -10,9 +10,8 @@ of the calibration's figures, so the start IS the ``--calib`` replay) and is sea
 2. a coordinate pattern search: each figure up and down by a step (half a decade, then a quarter, then an
    eighth), kept when the likelihood rises, until the replay budget is spent. Every candidate must stay
    consistent: no channel's mean NIS above 3 or below 0.2 (or beyond its start value when that was already
-   outside), no more resets, no attitude 1-sigma (median over the replay) above 1.5x the start's, and on a fixed
-   wing no more epochs with the estimated air flowing backwards through the airframe than at the start (at most
-   5 %).
+   outside), no more resets, and on a fixed wing no more epochs with the estimated air flowing backwards through
+   the airframe than at the start (at most 5 %).
 
 The likelihood is :func:`estimators.consistency.log_likelihood` (normalised innovations clipped at 5 sigma).
 Each evaluation rebuilds the replay inputs (0.1 s for 15 minutes of flight: measurement variances live in the
@@ -63,11 +62,6 @@ MATCH_ITERATIONS = 3
 #: A channel that starts outside the NIS warning range may drift this factor further out (its mean NIS moves a
 #: little with every other figure; without the slack no candidate would pass).
 NIS_START_TOLERANCE = 1.25
-#: A candidate may not let the filter's own attitude uncertainty (the median 1-sigma of roll, pitch and yaw over the
-#: replay) grow beyond this factor of the start's: the likelihood can rise by giving up an attitude the start could
-#: observe (a magnetometer-bias walk that absorbs the whole field, measured: indirect yaw 1.8 -> 4.0 deg in a
-#: disturbed field, every NIS in range).
-ATTITUDE_STD_GROWTH = 1.5
 
 
 @dataclass(frozen=True)
@@ -223,7 +217,6 @@ def tune_estimator(log: FlightLog, cal: Calibration, estimator: str, *, budget: 
 
     check_airflow = inputs.plan.fixed_wing and inputs.plan.has_airspeed
     airflow_limit = max(REVERSED_AIRFLOW_LIMIT, _reversed_share(best_run)) if check_airflow else math.inf
-    attitude_std_limit = ATTITUDE_STD_GROWTH * _attitude_std(best_run)
 
     def feasible(run) -> bool:
         """No channel more inconsistent than the warning limit (or than at the start), no more resets and no
@@ -233,8 +226,6 @@ def tune_estimator(log: FlightLog, cal: Calibration, estimator: str, *, budget: 
         if run.report.resets + run.report.gps_resets > start_resets:
             return False
         if check_airflow and _reversed_share(run) > airflow_limit:
-            return False
-        if np.any(_attitude_std(run) > attitude_std_limit):
             return False
         for c in channel_consistency(run.diagnostics):
             low, high = limits.get(c.channel, NIS_WARNING_RANGE)
@@ -325,14 +316,6 @@ def _mean_nis(run: EstimatorRun, channel: str) -> float:
     nis = diagnostics.loc[rows, "nis"].to_numpy(dtype=float)
     nis = nis[np.isfinite(nis)]
     return float(nis.mean()) if len(nis) else math.nan
-
-
-def _attitude_std(run: EstimatorRun) -> np.ndarray:
-    """Median 1-sigma of roll, pitch and yaw over a run's output epochs [deg] (NaN where the run has none)."""
-    columns = ["roll_deg_std", "pitch_deg_std", "yaw_deg_std"]
-    if not set(columns) <= set(run.states.columns):
-        return np.full(3, np.nan)
-    return np.nanmedian(run.states[columns].to_numpy(dtype=float), axis=0)
 
 
 def _reversed_share(run: EstimatorRun) -> float:

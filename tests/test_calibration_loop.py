@@ -20,7 +20,6 @@ import pytest
 from scipy.stats import chi2
 
 import app.commands.replay as replay_command
-import estimators.tuning as tuning_module
 from app.cli import EXIT_BAD_INPUT, main
 from calib.bias import local_gravity
 from calib.calibration import calibrate
@@ -419,19 +418,3 @@ def test_inflight_bias_is_refused_when_the_replay_gps_channels_are_inconsistent(
     bias = inflight_bias(calm, calm_cal)
     assert bias is not None and bias.source == "full_state_indirect"
     assert np.all(np.isfinite(bias.accel_bias_m_s2))
-
-
-@pytest.mark.parametrize("growth", [tuning_module.ATTITUDE_STD_GROWTH, math.inf])
-def test_tune_may_not_give_up_the_attitude(growth, monkeypatch):
-    """In the disturbed field of ``mag_disturbed`` (fused as a heading) the likelihood rises all the way to the
-    upper bound of the magnetometer-bias walk, a bias that absorbs the whole field, with every NIS in range; the
-    attitude-uncertainty check (:data:`estimators.tuning.ATTITUDE_STD_GROWTH`) stops it. ``math.inf``: without the
-    check, the walk the likelihood alone picks (the case the check exists for)."""
-    monkeypatch.setattr(tuning_module, "ATTITUDE_STD_GROWTH", growth)
-    log = _sim_log("mag_disturbed")
-    result = tune_estimator(log, calibrate(log, gravity=local_gravity(log)), "full_state_indirect")
-    walk = result.figures["mag_bias_walk"].value
-    if math.isinf(growth):
-        assert walk > 0.01
-    else:
-        assert walk < 0.005
