@@ -115,6 +115,13 @@ def wind_observed(kind, t, last_t):
 
 
 @njit(cache=True)
+def current_walk(walk_psd, held_walk, t, t_wind_observed):
+    """The random-walk densities in force at ``t`` [s]: ``walk_psd`` while the last airspeed or sideslip event
+    (:func:`wind_observed`) is at most :data:`WIND_HOLD_S` old, else ``held_walk`` (:func:`held_wind_walk`)."""
+    return walk_psd if t - t_wind_observed <= WIND_HOLD_S else held_walk
+
+
+@njit(cache=True)
 def held_wind_walk(walk_psd, wind_index):
     """Copy of the squared random-walk densities ``walk_psd`` with the two wind states (from ``wind_index``; < 0:
     none) at 0: the walk while the wind is held (:data:`WIND_HOLD_S`)."""

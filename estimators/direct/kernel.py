@@ -39,8 +39,8 @@ from estimators.core.full_state import (
     EIG_FLOOR,
     MAG_HEADING,
     PD_CHECK_EVERY,
-    WIND_HOLD_S,
     component_range,
+    current_walk,
     held_wind_walk,
     scalar_innovation,
     wind_observed,
@@ -407,7 +407,7 @@ def run_kernel(imu_gyro, imu_accel, ev_kind, ev_val, ev_var, op, op_dt, op_index
             linalg.accumulate_inputs(acc, op_dt[s], imu_gyro[k], imu_accel[k])
         elif code == COVARIANCE:
             if acc[0] > 0.0:
-                walk = settings.walk_psd if t_now - t_wind_observed <= WIND_HOLD_S else held_walk
+                walk = current_walk(settings.walk_psd, held_walk, t_now, t_wind_observed)
                 _flush_covariance(P, x_cov, acc, settings, walk, R_nb, S_euler, W_euler, A, F, Qd, work,
                                   mean_gyro, columns, F_values, F_cols, F_counts, counters)
             if not linalg.is_healthy(x, P):

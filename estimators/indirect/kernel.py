@@ -45,8 +45,8 @@ from estimators.core.full_state import (
     EIG_FLOOR,
     MAG_HEADING,
     PD_CHECK_EVERY,
-    WIND_HOLD_S,
     component_range,
+    current_walk,
     held_wind_walk,
     scalar_innovation,
     wind_observed,
@@ -395,8 +395,7 @@ def run_kernel(imu_gyro, imu_accel, ev_kind, ev_imu, ev_val, ev_var, op, op_dt, 
             linalg.accumulate_inputs(acc, op_dt[step], imu_gyro[k], imu_accel[k])
         elif code == COVARIANCE:
             if acc[0] > 0.0:
-                flush_covariance(P, s, s.walk_psd if t_now - t_wind_observed <= WIND_HOLD_S else held_walk, w,
-                                 counters)
+                flush_covariance(P, s, current_walk(s.walk_psd, held_walk, t_now, t_wind_observed), w, counters)
             _check_health(x, P, x_safe, s.P0, w.zero_error, counters)
         elif code == EVENT:
             j = op_index[step]

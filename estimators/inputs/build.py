@@ -192,9 +192,9 @@ def build_replay_inputs(flight_log: FlightLog, config: EstimatorConfig | None = 
             skipped["airspeed"] = "true airspeed constant"
             airspeed = None
         else:
-            flying = tas > config.timing.min_airspeed_m_s
-            if fixed_wing:  # a pitot on the ground reads the wind, not flight through the air
-                flying &= _airborne(tas_t, airspeed, gps, config)
+            # a fixed-wing pitot on the ground reads the wind, not flight through the air
+            flying = (_airborne(tas_t, airspeed, gps, config) if fixed_wing
+                      else tas > config.timing.min_airspeed_m_s)
             if not flying.any():
                 skipped["airspeed"] = (f"never above {config.timing.min_airspeed_m_s} m/s"
                                        + (f" with a ground speed above {config.timing.min_ground_speed_m_s} m/s"
