@@ -12,9 +12,9 @@ from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
-from scipy import stats
 
 from app.figures import TimeBase
+from calib.figures import chi2_quantile, mean_nis_band
 from estimators.environment import geodetic_to_ned
 from ingest import FlightLog
 from ingest.frames import wrap_angle_deg
@@ -194,14 +194,13 @@ def rms_table(errs: dict[str, pd.DataFrame]) -> pd.DataFrame:
 
 def nis_band(window: int, probability: float = NIS_BAND_PROBABILITY) -> tuple[float, float]:
     """Two-sided chi-square band of the mean of ``window`` scalar NIS values of a consistent filter [-]."""
-    tail = (1.0 - probability) / 2.0
-    return (float(stats.chi2.ppf(tail, window) / window), float(stats.chi2.ppf(1.0 - tail, window) / window))
+    return mean_nis_band(window, probability)
 
 
 def nis_summary(diagnostics: pd.DataFrame) -> pd.DataFrame:
     """Per estimator and sensor: updates, share accepted, mean NIS and the share of single NIS values inside the
     95 % chi-square(1) bound (0.95 for a consistent filter)."""
-    bound = float(stats.chi2.ppf(NIS_BAND_PROBABILITY, 1))
+    bound = chi2_quantile(NIS_BAND_PROBABILITY, 1)
     nis = diagnostics["nis"].to_numpy(float)
     frame = pd.DataFrame({"estimator": diagnostics["estimator"].astype("category"),
                           "sensor": diagnostics["sensor"].astype("category"), "nis": nis, "inside": nis <= bound,

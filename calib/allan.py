@@ -17,7 +17,6 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-import allantools
 import numpy as np
 
 from ingest.errors import InputError
@@ -115,6 +114,8 @@ def allan_deviation(x: np.ndarray, rate_hz: float) -> AllanCurve:
     max_cluster = max(2, int(MAX_CLUSTER_FRACTION * len(x)))
     n_points = max(2, round(POINTS_PER_DECADE * math.log10(max_cluster)) + 1)
     clusters = np.unique(np.round(np.logspace(0, math.log10(max_cluster), n_points)).astype(int))
+    import allantools  # here, not at the top: it imports scipy.stats, seconds for every CLI command
+
     taus_s, adev, adev_err, _ = allantools.oadev(x, rate=rate_hz, data_type="freq", taus=clusters / rate_hz)
     return AllanCurve(taus_s=np.asarray(taus_s), adev=np.asarray(adev), adev_err=np.asarray(adev_err),
                       rate_hz=float(rate_hz))

@@ -16,6 +16,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
+from scipy.special import chdtri
+
 #: name -> (unit, meaning). Densities are per sqrt(Hz) (variance per second of a white process), walks per
 #: sqrt(s), measurement noises per sample (docs/nomenclature.md).
 FIGURES: dict[str, tuple[str, str]] = {
@@ -44,6 +46,19 @@ FIGURES: dict[str, tuple[str, str]] = {
     "gps_vel_noise_scale": ("-", "factor on the GPS velocity sigma (receiver accuracy, floored)"),
     "wind_walk": ("m/s/sqrt(s)", "wind random walk (turbulence following)"),
 }
+
+
+def chi2_quantile(probability: float, dof: int | float) -> float:
+    """``probability`` quantile of the chi-square distribution with ``dof`` degrees of freedom (``chi2.ppf``, from
+    :mod:`scipy.special`: importing :mod:`scipy.stats` costs the CLI most of a second)."""
+    return float(chdtri(dof, 1.0 - probability))
+
+
+def mean_nis_band(n: int, probability: float = 0.95) -> tuple[float, float]:
+    """Two-sided ``probability`` band of the mean of ``n`` chi-square(1) values (the NIS of a consistent filter)."""
+    tail = (1.0 - probability) / 2.0
+    return chi2_quantile(tail, n) / n, chi2_quantile(1.0 - tail, n) / n
+
 
 #: Where a figure came from (the ``source`` of a :class:`Figure`).
 SOURCE_DEFAULT = "default"

@@ -19,8 +19,9 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import optimize, stats
+from scipy import optimize
 
+from calib.figures import mean_nis_band
 from ingest.errors import InputError
 from ingest.threads import thread_map
 
@@ -171,7 +172,7 @@ def choose_tau(replay: Callable[[float], Innovations], method: str = "likelihood
     if lag1 > COLOURED_LAG1:
         note = "; ".join(filter(None, [note, f"innovations are coloured (lag-1 autocorrelation {lag1:.2f} > "
                                              f"{COLOURED_LAG1}): the NIS chi-square band is too narrow"]))
-    band = (float(stats.chi2.ppf(0.025, n) / n), float(stats.chi2.ppf(0.975, n) / n))
+    band = mean_nis_band(n)
     return TauSelection(tau=10.0**best, method=method, log10_tau_grid=tuple(float(g) for g in grid),
                         neg_log_likelihood=tuple(nll_grid), mean_nis=tuple(nis_grid), n_innovations=n,
                         nis_at_tau=mean_nis(innovations), nis_band=band, lag1_autocorrelation=lag1, note=note)

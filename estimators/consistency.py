@@ -10,9 +10,8 @@ import math
 
 import numpy as np
 import pandas as pd
-from scipy.stats import chi2
 
-from calib.figures import ChannelConsistency
+from calib.figures import ChannelConsistency, mean_nis_band
 
 #: Mean NIS outside this range makes a channel inconsistent (a visible warning). The chi-square band of the mean
 #: of n NIS values is far narrower, but innovations are correlated in time (GPS, coloured sensor errors), which
@@ -57,7 +56,7 @@ def channel_consistency(diagnostics: pd.DataFrame) -> tuple[ChannelConsistency, 
         if len(nis) == 0:
             continue
         n = len(nis)
-        band = (float(chi2.ppf(0.025, n) / n), float(chi2.ppf(0.975, n) / n))
+        band = mean_nis_band(n)
         out.append(ChannelConsistency(channel=f"{sensor}.{component}", n_updates=n, mean_nis=float(nis.mean()),
                                       band=band))
     return tuple(out)

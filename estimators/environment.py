@@ -11,7 +11,6 @@ from functools import lru_cache
 
 import numpy as np
 import pandas as pd
-import pvlib
 from pygeomag import GeoMag
 
 from ingest.atmosphere import AIR_GAS_CONSTANT_J_KG_K, STANDARD_GRAVITY_M_S2
@@ -104,6 +103,8 @@ def sun_direction_ned(times_utc, lat_deg, lon_deg, alt_m, pressure_pa=None, temp
     n = len(times)
     pressure = isa_pressure_pa(alt_m) if pressure_pa is None else pressure_pa
     temperature = 12.0 if temp_c is None else temp_c
+    import pvlib  # here, not at the top: pvlib costs every CLI command a third of a second to import
+
     position = pvlib.solarposition.spa_python(
         times, np.broadcast_to(lat_deg, n), np.broadcast_to(lon_deg, n), altitude=np.broadcast_to(alt_m, n),
         pressure=np.broadcast_to(pressure, n), temperature=np.broadcast_to(temperature, n), delta_t=None)

@@ -12,7 +12,6 @@ import subprocess
 import sys
 from pathlib import Path
 
-from app.samples import add_samples, prepare_samples
 from app.workspace import Workspace
 
 #: The Streamlit entrypoint.
@@ -43,6 +42,8 @@ def streamlit_command(workspace: Path, port: int) -> list[str]:
 def run(args: argparse.Namespace) -> int:
     """Prepare the workspace and serve the dashboard until interrupted; Streamlit's exit code."""
     workspace = Path(args.workspace).resolve()
+    from app.samples import add_samples, prepare_samples  # deferred: it imports the calibration stack (1 s)
+
     store = Workspace(workspace)
     entries = (add_samples(store) if args.skip_sample_runs
                else prepare_samples(store, report=lambda line: print(line, flush=True)))

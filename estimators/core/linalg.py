@@ -68,8 +68,9 @@ def transition_matrix(A, dt, F):
     walks'), written into ``F``.
 
     Only the leading rows of ``A`` with dynamics (:func:`dynamic_rows`) are non-zero, so ``A A`` is
-    ``A[:, :m] A[:m, :]`` and the rows from ``m`` on are identity rows; the products are dense over that block
-    (no data-dependent branches in the inner loops).
+    ``A[:, :m] A[:m, :]`` and the rows from ``m`` on are identity rows. Most of ``A[:m, :m]`` is zero (position
+    rows see velocity and attitude only), so a zero coefficient skips its row product (the inner loop stays
+    branch-free); the result is the dense product's exactly.
 
     Parameters
     ----------
@@ -83,17 +84,19 @@ def transition_matrix(A, dt, F):
     n = A.shape[0]
     m = dynamic_rows(A, False)
     half_dt2 = 0.5 * dt * dt
-    for i in range(n):
+    for i in range(m):
+        for j in range(n):
+            F[i, j] = A[i, j] * dt
+        F[i, i] += 1.0
+        for k in range(m):
+            c = A[i, k] * half_dt2
+            if c != 0.0:
+                for j in range(n):
+                    F[i, j] += c * A[k, j]
+    for i in range(m, n):
         for j in range(n):
             F[i, j] = 0.0
         F[i, i] = 1.0
-    for i in range(m):
-        for j in range(n):
-            F[i, j] += A[i, j] * dt
-        for k in range(m):
-            c = A[i, k] * half_dt2
-            for j in range(n):
-                F[i, j] += c * A[k, j]
 
 
 @njit(cache=True)
