@@ -33,6 +33,10 @@ AIRBORNE_AIR_SPEED_M_S = 5.0
 REVERSED_AIRFLOW_LIMIT = 0.05
 
 
+def _as_categorical(column: pd.Series) -> pd.Categorical:
+    return column.array if isinstance(column.dtype, pd.CategoricalDtype) else pd.Categorical(column)
+
+
 def log_likelihood(diagnostics: pd.DataFrame) -> float:
     """Innovation log-likelihood ``-1/2 sum_k [min(nu_k^2 / S_k, c^2) + ln(2 pi S_k)]`` over every scalar update
     of one estimator's diagnostics (c = :data:`LIKELIHOOD_CLIP_SIGMA`)."""
@@ -47,18 +51,22 @@ def log_likelihood(diagnostics: pd.DataFrame) -> float:
 
 def channel_consistency(diagnostics: pd.DataFrame) -> tuple[ChannelConsistency, ...]:
     """Mean NIS per ``sensor.component`` channel of one estimator's diagnostics, with the 95 % band of the mean of
-    that many chi-square(1) values."""
+    that many chi-square(1) values; channels in the order of the ``sensor`` then ``component`` categories (sorted
+    names for plain columns), as a sorted groupby."""
+    nis = diagnostics["nis"].to_numpy(dtype=float)
+    sensor = _as_categorical(diagnostics["sensor"])
+    component = _as_categorical(diagnostics["component"])
+    used = np.isfinite(nis) & (sensor.codes >= 0) & (component.codes >= 0)
+    n_components = max(len(component.categories), 1)
+    # one integer key per (sensor, component): a bincount instead of a groupby (a 1-hour log has ~10^6 updates)
+    key = sensor.codes.astype(np.int64)[used] * n_components + component.codes.astype(np.int64)[used]
+    keys, inverse, counts = np.unique(key, return_inverse=True, return_counts=True)
+    sums = np.bincount(inverse, weights=nis[used], minlength=len(keys))
     out = []
-    frame = diagnostics[["sensor", "component", "nis"]]
-    for (sensor, component), group in frame.groupby(["sensor", "component"], observed=True, sort=True):
-        nis = group["nis"].to_numpy(dtype=float)
-        nis = nis[np.isfinite(nis)]
-        if len(nis) == 0:
-            continue
-        n = len(nis)
-        band = mean_nis_band(n)
-        out.append(ChannelConsistency(channel=f"{sensor}.{component}", n_updates=n, mean_nis=float(nis.mean()),
-                                      band=band))
+    for k, n, total in zip(keys, counts, sums, strict=True):
+        sensor_name, component_name = sensor.categories[k // n_components], component.categories[k % n_components]
+        out.append(ChannelConsistency(channel=f"{sensor_name}.{component_name}", n_updates=int(n),
+                                      mean_nis=float(total / n), band=mean_nis_band(int(n))))
     return tuple(out)
 
 
