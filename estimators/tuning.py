@@ -118,7 +118,8 @@ KNOBS = (
     Knob("accel_bias_walk", 1e-5, 3e-3, None, _FULL, "has_gps"),
     Knob("accel_bias_walk_z", 1e-5, 0.1, None, _FULL, "has_gps"),
     Knob("wind_walk", 1e-3, 5.0, None, _FULL, "has_airspeed"),
-    Knob("mag_bias_walk", 1e-7, 0.05, None, _FULL, "has_mag"),
+    # at most ArduPilot EKF3's EK3_MAGB_P_NSE range top (0.01 gauss/s): faster, the bias follows a disturbance
+    Knob("mag_bias_walk", 1e-7, 0.01, None, _FULL, "has_mag"),
     Knob("baro_bias_walk", 1e-4, 1.0, None, _FULL, "has_baro"),
 )
 
