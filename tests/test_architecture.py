@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import ast
 import re
+import subprocess
+import sys
 
 import pytest
 
@@ -105,3 +107,16 @@ def test_docstrings_cite_existing_docs_sections_and_nothing_outside_the_reposito
             if path.name != "test_architecture.py" and re.search(r"\b(math|design) note\b", text, re.I):
                 problems.append(f"{path.relative_to(REPO_DIR)} cites the design note")
     assert not problems, "\n".join(problems)
+
+
+def test_a_cli_command_imports_its_own_stack_only():
+    # `solarnav replay` must not pay for the simulator, Dask, the calibration stack or scipy.stats (seconds of
+    # imports before the first line of work)
+    code = ("import sys; from app.cli import build_parser; build_parser('replay'); "
+            "print(sorted(m for m in ('sim.simulate', 'distributed', 'calib.calibration', 'scipy.stats', 'pvlib', "
+            "'allantools') if m in sys.modules))")
+    out = subprocess.run([sys.executable, "-c", code], cwd=REPO_DIR, capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "[]"
+    every = subprocess.run([sys.executable, "-c", code.replace("build_parser('replay')", "build_parser()")],
+                           cwd=REPO_DIR, capture_output=True, text=True, check=True)
+    assert "sim.simulate" in every.stdout  # the check sees them when they are imported

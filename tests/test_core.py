@@ -30,6 +30,19 @@ def test_transition_matrix_is_second_order_series(rows):
     np.testing.assert_allclose(F, expected, rtol=0, atol=1e-15)
 
 
+def test_transition_matrix_of_a_sparse_jacobian_equals_the_dense_series():
+    # the filters' A: most coefficients of the dynamic block are zero (the product skips them), one is -0.0, and
+    # the static rows are zero
+    rng = np.random.default_rng(3)
+    A = np.zeros((12, 12))
+    A[:6] = rng.normal(size=(6, 12)) * (rng.random((6, 12)) < 0.3)
+    A[2, 4] = -0.0
+    F = np.full_like(A, np.nan)  # every entry must be written
+    linalg.transition_matrix(A, 0.02, F)
+    expected = np.eye(12) + A * 0.02 + (A @ A) * 0.02 ** 2 / 2
+    np.testing.assert_allclose(F, expected, rtol=0, atol=1e-15)
+
+
 @pytest.mark.parametrize("rows", DYNAMIC_ROWS)
 def test_propagate_covariance_equals_dense_form(rows):
     rng = np.random.default_rng(2)
