@@ -10,7 +10,7 @@ import dataclasses
 import json
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import pandas as pd
@@ -93,7 +93,13 @@ class StageClock:
         self.lanes: dict[str, dict[str, float]] = {}
         self._current: tuple[str, float] | None = None
         self._lane_started: dict[str, float] = {}
+        self._lane_order: tuple[str, ...] = ()
         self._lock = threading.RLock()
+
+    def order_lanes(self, lanes: Sequence[str]) -> None:
+        """Show the lanes in the order of ``lanes`` (e.g. the selected estimators) rather than the order in which
+        they end, which varies from run to run when they run side by side; lanes not named follow."""
+        self._lane_order = tuple(lanes)
 
     def start(self, stage: str, text: str) -> None:
         """Finish the stage under way and start ``stage``, showing ``text``."""
@@ -144,7 +150,11 @@ class StageClock:
 
         def lanes(stage: str) -> str:
             timed = self.lanes.get(stage)
-            return f" ({', '.join(f'{lane} {seconds:.1f} s' for lane, seconds in timed.items())})" if timed else ""
+            if not timed:
+                return ""
+            rank = {lane: index for index, lane in enumerate(self._lane_order)}
+            ordered = sorted(timed.items(), key=lambda item: rank.get(item[0], len(rank)))
+            return f" ({', '.join(f'{lane} {seconds:.1f} s' for lane, seconds in ordered)})"
 
         parts = ", ".join(f"{stage} {seconds:.1f} s{lanes(stage)}" for stage, seconds in totals.items())
         return f"{sum(totals.values()):.1f} s: {parts}"
@@ -206,6 +216,7 @@ def replay(log: FlightLog, settings: RunSettings, calibration: Calibration | Non
     own_clock = clock is None
     names = settings.estimators
     clock = StageClock(progress, run_steps(len(names), store=False)) if own_clock else clock
+    clock.order_lanes(names)
     cold: set[str] = set()
     solver = (SUN_SOLVER,) if "sun" in settings.heading else ()
     if prepare_compile((*names, *solver)) is not None:  # (after dropping a stale cache numba would load)

@@ -159,9 +159,9 @@ def run_estimators(flight_log: FlightLog, *, estimators: str | Sequence[str] = D
         Replay a log whose inputs are refused (``solarnav replay --force``); every report then leads its warnings
         with each refused finding (:data:`UNTRUSTED_PREFIX`).
     threads : int, optional
-        Estimators run at the same time (default: one per estimator, at most one per CPU); their compiled kernels
-        release the GIL, so the threads share the one set of replay inputs without copies. Results do not depend
-        on it.
+        Estimators run at the same time (default: one per estimator, even beyond the CPUs: three kernels on two
+        CPUs then finish together instead of the third waiting for a free one); their compiled kernels release the
+        GIL, so the threads share the one set of replay inputs without copies. Results do not depend on it.
     progress : callable, optional
         ``progress(stage, estimator)`` with ``stage`` in ``"prepare"`` (building its inputs), ``"run"`` (its filter
         started) and ``"done"`` (called from the worker threads), then ``progress("report", "")`` once all are done
@@ -207,7 +207,7 @@ def run_estimators(flight_log: FlightLog, *, estimators: str | Sequence[str] = D
         notify("done", name)
         return run
 
-    runs = thread_map(run_one, names, threads)  # the kernels release the GIL (nogil): side by side
+    runs = thread_map(run_one, names, len(names) if threads is None else threads)  # nogil kernels: side by side
     notify("report", "")
     reports = {name: _checked_report(run, configs[name], {"prepare": prepare_s[name], **run.report.timings_s},
                                      findings, fixed_wing=inputs[name].plan.fixed_wing)

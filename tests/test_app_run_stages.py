@@ -103,3 +103,18 @@ def test_a_replay_on_its_own_ends_with_done_and_a_cold_filter_says_it_compiles_u
     assert texts == [f"{compiling}: checking the inputs ...", f"{compiling}: preparing the inputs of three_stage ...",
                      f"{compiling}: running the filters: three_stage running", "Running the filters: three_stage done",
                      "Computing the diagnostics ...", "Stacking the tables ...", "Done"]
+
+
+def test_lanes_are_shown_in_the_selected_order_whatever_order_they_end_in(monkeypatch):
+    ticks = iter([0.0, 0.0, 1.0, 2.0, 9.0, 10.0, 11.0, 12.0])  # stage start, lanes a/b/c start, c/b/a end, finish
+    monkeypatch.setattr(runs.time, "perf_counter", lambda: next(ticks))
+    clock = runs.StageClock(None, 1)
+    clock.order_lanes(["a", "b", "c"])
+    clock.start(runs.RUNNING, "")
+    for lane in "abc":
+        clock.lane_start(lane)
+    for lane in "cba":
+        clock.lane_end(lane)
+    clock.finish()
+    assert list(clock.lanes[runs.RUNNING]) == ["c", "b", "a"]  # recorded as they ended
+    assert clock.summary() == "12.0 s: running the filters 12.0 s (a 11.0 s, b 9.0 s, c 7.0 s)"
