@@ -4,7 +4,9 @@
    simulator's true noise (:func:`estimators.evaluation.config_for_simulation`): RMS errors after 60 s next to the
    paper's Table 2 row; position and height bars are the larger of Table 2 and 1.1 x the RMS of the simulated GPS
    error of the run (the receiver's Gauss-Markov error is unobservable).
-2. Compile time per estimator, cold (empty numba cache) and cached (a second process), each in a fresh process.
+2. Compile time per estimator, cold (empty numba cache) and cached (a second process), each in a fresh process;
+   then the set-up's warm-up (:func:`estimators.warmup.warm_up`: three filters, sun-vector solver, ULog reader)
+   cold in one process and in two processes side by side.
 3. Microseconds per IMU sample per estimator (compiled kernel only) on a simulated 1-hour, 250 Hz flight (the
    paper mission, extended at rest on the ground past its 14.4 minutes).
 4. Wall time of ``solarnav replay`` of that flight with all estimators (process start, ULog read, Parquet write).
@@ -101,6 +103,23 @@ def compile_times(names: list[str], log_path: Path) -> None:
                 _, first, second = map(float, out)
                 row.append(f"{label} first run {first:6.2f} s (compile/load {first - second:6.2f} s)")
             print(f"{name:22s}" + ";  ".join(row))
+
+
+_WARM_UP_SNIPPET = """
+import sys
+from estimators.warmup import warm_up
+print(warm_up(processes=int(sys.argv[1])))
+"""
+
+
+def warm_up_times() -> None:
+    """The set-up's cold warm-up, one process against two, each with its own empty cache."""
+    for processes in (1, 2):
+        with tempfile.TemporaryDirectory() as cache:
+            out = subprocess.run([PYTHON, "-c", _WARM_UP_SNIPPET, str(processes)], cwd=REPO, capture_output=True,
+                                 text=True, check=True, env={**os.environ, "NUMBA_CACHE_DIR": cache}).stdout
+            print(f"warm-up, cold, {processes} process{'es' if processes > 1 else ''}: {float(out.split()[-1]):.1f} s "
+                  "wall")
 
 
 def per_sample_times(names: list[str], log, repeat: int) -> dict[str, float]:
@@ -224,6 +243,7 @@ def main() -> None:
     if not args.skip_compile:
         print("== 2. compile time (fresh process each; cold = empty numba cache)")
         compile_times(names, SAMPLE_LOGS / "paper.ulg")
+        warm_up_times()
     with tempfile.TemporaryDirectory() as directory:
         print(f"== 3. simulating a {args.minutes:g} min flight (250 Hz IMU) ...")
         scenario = SCENARIOS["paper"]

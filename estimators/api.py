@@ -164,8 +164,8 @@ def run_estimators(flight_log: FlightLog, *, estimators: str | Sequence[str] = D
         GIL, so the threads share the one set of replay inputs without copies. Results do not depend on it.
     progress : callable, optional
         ``progress(stage, estimator)`` with ``stage`` in ``"prepare"`` (building its inputs), ``"run"`` (its filter
-        started) and ``"done"`` (called from the worker threads), then ``progress("report", "")`` once all are done
-        (consistency checks, reports and tables follow).
+        started) and ``"done"`` (its run and its report, consistency checks included, are ready; called from the
+        worker threads), then ``progress("report", "")`` once all are done (the stacked tables follow).
 
     Every report carries ``details["consistency"]`` (mean NIS per channel, :mod:`estimators.consistency`) and
     ``details["calibration"]`` (each calibrated figure behind the run's settings: its source and what this
@@ -201,17 +201,19 @@ def run_estimators(flight_log: FlightLog, *, estimators: str | Sequence[str] = D
             built.append((configs[name], shared))
         inputs[name], prepare_s[name] = shared, time.perf_counter() - started
 
-    def run_one(name: str) -> EstimatorRun:
+    def run_one(name: str) -> tuple[EstimatorRun, EstimatorReport]:
         notify("run", name)
         run = functions[name](flight_log, inputs[name], configs[name])
+        # its consistency checks here, while the other estimators' kernels still run
+        report = _checked_report(run, configs[name], {"prepare": prepare_s[name], **run.report.timings_s},
+                                 findings, fixed_wing=inputs[name].plan.fixed_wing)
         notify("done", name)
-        return run
+        return run, report
 
-    runs = thread_map(run_one, names, len(names) if threads is None else threads)  # nogil kernels: side by side
+    finished = thread_map(run_one, names, len(names) if threads is None else threads)  # nogil kernels: side by side
     notify("report", "")
-    reports = {name: _checked_report(run, configs[name], {"prepare": prepare_s[name], **run.report.timings_s},
-                                     findings, fixed_wing=inputs[name].plan.fixed_wing)
-               for name, run in zip(names, runs, strict=True)}
+    runs = [run for run, _ in finished]
+    reports = {name: report for name, (_, report) in zip(names, finished, strict=True)}
     state_columns = dict.fromkeys(column for run in runs for column in run.states.columns)
     extra = [column for column in state_columns if column not in STATE_COLUMNS]
     states = _stacked(names, [run.states for run in runs], (*STATE_COLUMNS[1:], *extra))

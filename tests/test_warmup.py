@@ -39,6 +39,9 @@ def test_cache_check_is_cold_on_an_empty_cache_and_warm_after_the_warm_up(tmp_pa
     assert warmed.returncode == 0, warmed.stderr
     assert "compiling the estimators (first run only, about" in warmed.stdout
     assert "compiled the estimators in" in warmed.stdout and "sun-vector solver:" in warmed.stdout
+    reported = [line.split(":")[0].strip() for line in warmed.stdout.splitlines() if line.startswith("  ")]
+    assert sorted(reported) == sorted(["three_stage", "full_state_direct", "full_state_indirect", "sun-vector solver",
+                                       "ULog reader"]), warmed.stdout  # from the two processes, each item once
 
     warm = _python(["-m", "estimators.warmup", "--check"], cache)
     assert warm.returncode == 0 and warm.stdout.strip() == "warm", warm.stdout + warm.stderr
@@ -62,6 +65,16 @@ def test_cache_check_is_cold_on_an_empty_cache_and_warm_after_the_warm_up(tmp_pa
     first, second = result.stdout.strip().splitlines()
     assert first == "True a source the kernel depends on is newer than its cache"
     assert second == "False False 4"  # three filters, the sun solver
+
+
+def test_the_warm_up_groups_cover_every_entry_kernel_and_the_ulog_reader_once():
+    from estimators import warmup
+    from estimators.api import DEFAULT_ESTIMATORS
+
+    items = [item for group in warmup.WARM_GROUPS for item in group]
+    assert len(items) == len(set(items))  # nothing compiled twice
+    assert set(items) == {*warmup.ENTRY_KERNELS, warmup.ULOG_READER}
+    assert set(DEFAULT_ESTIMATORS) <= set(items)
 
 
 def test_replay_says_compiling_only_when_the_cache_is_cold(tmp_path):
