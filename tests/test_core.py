@@ -120,6 +120,16 @@ def test_divergence_detection_and_reset():
     assert not linalg.is_healthy(x, P)
     assert not linalg.is_healthy(np.zeros(2), np.array([[1.0, np.inf], [np.inf, 1.0]]))
     assert linalg.is_healthy(np.zeros(2), np.eye(2))
+    assert not linalg.is_healthy(np.zeros(2), np.diag([1.0, 0.0]))  # a variance that is not positive
+    # one non-finite entry anywhere in a 21-state covariance is found (its branch-free scan)
+    x21, P21 = np.zeros(21), np.eye(21) + 0.1
+    P21[0, 0] = P21[20, 20] = 1e300  # large but finite
+    assert linalg.is_healthy(x21, P21)
+    for bad in (np.nan, np.inf, -np.inf):
+        for i, j in ((0, 1), (7, 13), (20, 19), (20, 0)):
+            broken = P21.copy()
+            broken[i, j] = bad
+            assert not linalg.is_healthy(x21, broken), (bad, i, j)
     linalg.reset_filter(x, P, np.array([3.0, 4.0]), 2 * np.eye(2))
     np.testing.assert_array_equal(x, [3.0, 4.0])
     np.testing.assert_array_equal(P, 2 * np.eye(2))

@@ -237,9 +237,12 @@ def _flush_covariance(P, x_cov, acc, settings, walk_psd, R_nb, S_euler, W_euler,
     model.process_noise(x_cov, settings.gyro_psd, settings.accel_psd, walk_psd, dt, R_nb, S_euler, W_euler, Qd)
     linalg.sparse_rows(F, columns, F_values, F_cols, F_counts)
     linalg.propagate_sparse(P, F_values, F_cols, F_counts, work)
-    for i in range(n):  # + Qd (symmetric: the diagonal and the velocity/attitude block)
-        for j in range(n):
-            P[i, j] += Qd[i, j]
+    for i in range(n):  # + Qd, where it is not zero: the diagonal and the velocity/attitude block
+        P[i, i] += Qd[i, i]
+    for i in range(I_V, I_TH + 3):
+        for j in range(I_V, I_TH + 3):
+            if i != j:
+                P[i, j] += Qd[i, j]
     counters[C_FLUSHES] += 1
     if linalg.scheduled_repair(P, settings.min_var, settings.max_var, work, EIG_FLOOR,
                                counters[C_FLUSHES], PD_CHECK_EVERY):
