@@ -241,7 +241,15 @@ WARM_GROUPS = (("three_stage", SUN_SOLVER), (ULOG_READER, "full_state_direct", "
 WARM_LABELS = {SUN_SOLVER: "sun-vector solver", ULOG_READER: "ULog reader"}
 
 
-def warm_up(report: Callable[[str], None] | None = None, processes: int | None = None) -> float:
+def warm_groups(only: Iterable[str] | None = None) -> list[tuple[str, ...]]:
+    """The non-empty groups of :data:`WARM_GROUPS`, restricted to the items ``only`` when given."""
+    keep = None if only is None else set(only)
+    groups = (tuple(item for item in group if keep is None or item in keep) for group in WARM_GROUPS)
+    return [group for group in groups if group]
+
+
+def warm_up(report: Callable[[str], None] | None = None, processes: int | None = None,
+            only: Iterable[str] | None = None) -> float:
     """Compile (or load) every filter kernel by replaying :func:`synthetic_flight` with each filter, the sun-vector
     solver and the ULog reader, after dropping a stale cache; returns the wall time [s].
 
@@ -252,14 +260,17 @@ def warm_up(report: Callable[[str], None] | None = None, processes: int | None =
     processes : int, optional
         Processes compiling side by side (default: one per group, at most one per CPU); 1 compiles in this
         process, one item after the other.
+    only : iterable of str, optional
+        Compile these items of :data:`WARM_GROUPS` only (e.g. the estimators a command is about to run).
     """
     start = time.perf_counter()
     if cache_state().stale:
         drop_package_caches()
-    workers = min(len(WARM_GROUPS), os.cpu_count() or 1) if processes is None else max(1, int(processes))
+    groups = warm_groups(only)
+    workers = min(len(groups), os.cpu_count() or 1) if processes is None else max(1, int(processes))
     say = report if report is not None else (lambda line: None)
-    if workers < 2:
-        for group in WARM_GROUPS:
+    if workers < 2 or len(groups) < 2:
+        for group in groups:
             for line in _warm_group(group):
                 say(line)
         return time.perf_counter() - start
@@ -268,7 +279,7 @@ def warm_up(report: Callable[[str], None] | None = None, processes: int | None =
 
     # spawn: a fresh interpreter (no fork of a process that may hold threads and numba's locks)
     with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn")) as pool:
-        for future in as_completed([pool.submit(_warm_group, group) for group in WARM_GROUPS]):
+        for future in as_completed([pool.submit(_warm_group, group) for group in groups]):
             for line in future.result():
                 say(line)
     return time.perf_counter() - start

@@ -77,6 +77,16 @@ def test_the_warm_up_groups_cover_every_entry_kernel_and_the_ulog_reader_once():
     assert set(DEFAULT_ESTIMATORS) <= set(items)
 
 
+def test_warm_groups_keep_only_the_items_asked_for():
+    from estimators import warmup
+
+    assert warmup.warm_groups() == list(warmup.WARM_GROUPS)
+    assert warmup.warm_groups(["three_stage"]) == [("three_stage",)]  # one group: compiled in the process itself
+    assert warmup.warm_groups(["full_state_direct", "full_state_indirect"]) == [("full_state_direct",
+                                                                                "full_state_indirect")]
+    assert warmup.warm_groups(["full_state_indirect", "three_stage"]) == [("three_stage",), ("full_state_indirect",)]
+
+
 def test_replay_says_compiling_only_when_the_cache_is_cold(tmp_path):
     cache = tmp_path / "numba"
     command = ["-m", "app.cli", "replay", str(SAMPLE), "--estimators", "three_stage", "-o"]
