@@ -285,6 +285,17 @@ def warm_up(report: Callable[[str], None] | None = None, processes: int | None =
     return time.perf_counter() - start
 
 
+def compile_side_by_side(items: Iterable[str]) -> bool:
+    """Compile ``items`` (estimators, :data:`SUN_SOLVER`) now, in two processes, when they fall into both groups of
+    :data:`WARM_GROUPS` and the machine has two CPUs; returns whether it did. Otherwise (one group: nothing to
+    gain) they are left to compile in their first run."""
+    items = tuple(items)
+    if len(warm_groups(items)) < 2 or (os.cpu_count() or 1) < 2:
+        return False
+    warm_up(only=items)
+    return True
+
+
 def _warm_group(items: tuple[str, ...]) -> list[str]:
     """Compile (or load) ``items`` of :data:`WARM_GROUPS` one after the other in this process; one report line
     each, with its wall time."""

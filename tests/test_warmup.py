@@ -85,6 +85,7 @@ def test_warm_groups_keep_only_the_items_asked_for():
     assert warmup.warm_groups(["full_state_direct", "full_state_indirect"]) == [("full_state_direct",
                                                                                 "full_state_indirect")]
     assert warmup.warm_groups(["full_state_indirect", "three_stage"]) == [("three_stage",), ("full_state_indirect",)]
+    assert not warmup.compile_side_by_side(["full_state_direct", "full_state_indirect"])  # one group: left to the run
 
 
 def test_replay_says_compiling_only_when_the_cache_is_cold(tmp_path):

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import argparse
 import math
-import os
 import sys
 from pathlib import Path
 
@@ -32,7 +31,7 @@ from estimators.api import (
 from estimators.config import EstimatorConfig, config_from_calibration
 from estimators.consistency import turbulence_intensity_m_s
 from estimators.inputs.records import HEADING_SOURCES
-from estimators.warmup import SUN_SOLVER, prepare_compile, warm_groups, warm_up
+from estimators.warmup import SUN_SOLVER, compile_side_by_side, prepare_compile
 from ingest.errors import InputError
 from ingest.files import atomic_write
 from ingest.sun_log import load_sun_device, with_sun
@@ -96,14 +95,12 @@ def run(args: argparse.Namespace) -> int:
 
 def announce_compile(estimators) -> None:
     """Print "compiling the estimators (first run only) ..." to stderr when the filters ``estimators`` would be
-    compiled (their numba cache is cold or stale; a stale one is dropped first). When they fall into both groups
-    of :data:`estimators.warmup.WARM_GROUPS` (the three-stage filter and a full-state one), compile them now in
-    two processes side by side (numba compiles one function at a time within a process)."""
+    compiled (their numba cache is cold or stale; a stale one is dropped first), then compile them in two processes
+    when that is faster (:func:`estimators.warmup.compile_side_by_side`)."""
     message = prepare_compile(estimators)
     if message is not None:
         print(f"{message} ...", file=sys.stderr, flush=True)
-        if len(warm_groups(estimators)) > 1 and (os.cpu_count() or 1) > 1:
-            warm_up(only=estimators)
+        compile_side_by_side(estimators)
 
 
 def _checked_path(path: str, option: str) -> Path:
