@@ -14,23 +14,17 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
-import json
-import tempfile
-from pathlib import Path
 
 import numpy as np
 import pandas as pd
 import streamlit as st
 
 from app import comparison, runs, samples, tables
-from app.comparison import Comparison, gps_origin
 from app.loading import load_log
 from app.workspace import LogEntry, Workspace
-from calib.bias import local_gravity
-from calib.calibration import Calibration, FirSettings, allan_curves, calibrate, sensor_samples, with_tau
-from calib.export import calibration_to_dict, read_calibration
+from calib.calibration import Calibration, FirSettings, allan_curves, sensor_samples, with_tau
+from calib.export import read_calibration
 from calib.fir import design_fir, edge_slice, zero_phase_lowpass
-from calib.parameter_export import DEFAULT_PREDICT_PERIOD_S, export_figures, px4_parameters, write_px4_params
 from calib.segments import (
     ACCEL_COLUMNS,
     GYRO_COLUMNS,
@@ -40,13 +34,14 @@ from calib.segments import (
     find_steady_segments,
     user_segment,
 )
-from calib.tau import TauSelection, choose_tau, user_tau
-from estimators.calibration_replay import tau_replay, with_filter_figures
+from calib.tau import TauSelection, user_tau
 from estimators.environment import geodetic_to_ned
+from estimators.evaluation import Evaluation, position_origin
 from estimators.sun.prediction import sun_vector_table
-from estimators.tuning import tune_calibration
 from ingest import FlightLog
 from ingest.quality import assess_input_quality
+from workflows.calibration import choose_tau_by_replay, identify_noise, measure_noise
+from workflows.exports import calibration_text, px4_text
 
 #: Bytes per MB in Streamlit's ``server.maxUploadSize``.
 BYTES_PER_MB = 1024 * 1024
@@ -128,7 +123,7 @@ def tracks_ned(root: str, sha256: str) -> dict[str, pd.DataFrame]:
     """
     log = stored_log(root, sha256)
     out: dict[str, pd.DataFrame] = {}
-    origin = gps_origin(log)
+    origin = position_origin(log)
     if origin is not None:
         out["GPS"] = _geodetic_track(log["gps"].dropna(subset=["lat_deg", "lon_deg", "alt_m"]), origin)
     for label in ("onboard", "truth"):
@@ -202,7 +197,7 @@ def _segment(log: FlightLog, window: tuple[float, float] | None) -> Segment | No
 @st.cache_data(max_entries=16, show_spinner="Calibrating the sensors ...")
 def calibration(root: str, sha256: str, window: tuple[float, float] | None, fir: FirRows,
                 noise: str) -> Calibration:
-    """:func:`calib.calibration.calibrate` of a stored log over ``window`` [s] (None: automatic segments).
+    """:func:`workflows.calibration.measure_noise` of a stored log over ``window`` [s] (None: automatic segments).
 
     Parameters
     ----------
@@ -214,7 +209,7 @@ def calibration(root: str, sha256: str, window: tuple[float, float] | None, fir:
     log = stored_log(root, sha256)
     settings = {sensor: FirSettings(None if np.isnan(cutoff) else float(cutoff), int(taps) or None)
                 for sensor, cutoff, taps in fir}
-    return calibrate(log, segment=_segment(log, window), fir=settings, noise=noise, gravity=local_gravity(log))
+    return measure_noise(log, segment=_segment(log, window), fir=settings, noise=noise)
 
 
 @st.cache_data(max_entries=16, show_spinner=False)
@@ -239,10 +234,9 @@ def allan(root: str, sha256: str, window: tuple[float, float] | None, fir: FirRo
 @st.cache_data(max_entries=8, show_spinner="Replaying the three-stage estimator for every candidate tau ...")
 def auto_tau(root: str, sha256: str, window: tuple[float, float] | None, fir: FirRows, noise: str,
              method: str) -> TauSelection:
-    """Tau chosen by replaying the three-stage estimator (:func:`calib.tau.choose_tau` with
-    :func:`estimators.calibration_replay.tau_replay`, as the ``calibrate`` command does), with the evidence curves."""
-    cal = calibration(root, sha256, window, fir, noise)
-    return choose_tau(tau_replay(stored_log(root, sha256), cal), method=method)
+    """Tau chosen by replaying the three-stage estimator (:func:`workflows.calibration.choose_tau_by_replay`, as the
+    ``calibrate`` command does), with the evidence curves."""
+    return choose_tau_by_replay(stored_log(root, sha256), calibration(root, sha256, window, fir, noise), method)
 
 
 def with_tau_value(cal: Calibration, tau: float | TauSelection) -> Calibration:
@@ -251,28 +245,19 @@ def with_tau_value(cal: Calibration, tau: float | TauSelection) -> Calibration:
 
 
 def calibration_files(root: str, sha256: str, cal: Calibration) -> tuple[str, str]:
-    """CALIB.json text and the PX4 ``.params`` text of a calibration (EKF2 period from the log's parameters)."""
-    predict_us = stored_log(root, sha256).meta.parameters.get("EKF2_PREDICT_US")
-    period_s = predict_us / 1e6 if predict_us else DEFAULT_PREDICT_PERIOD_S
-    imu_rate_hz = cal.sensors["gyroscope"].fir.fs_hz if "gyroscope" in cal.sensors else None
-    with tempfile.TemporaryDirectory() as directory:
-        params_path = write_px4_params(px4_parameters(export_figures(cal), period_s, imu_rate_hz),
-                                       Path(directory) / "calib.params",
-                                       header=f"EKF2 noise parameters calibrated by solarnav from {cal.source}\n"
-                                              f"EKF2 prediction period {period_s * 1e3:g} ms")
-        params_text = params_path.read_text()
-    return json.dumps(calibration_to_dict(cal), indent=2, allow_nan=False) + "\n", params_text
+    """CALIB.json text and the PX4 ``.params`` text of a calibration (:mod:`workflows.exports`, as the CLI writes
+    them)."""
+    return calibration_text(cal), px4_text(cal, stored_log(root, sha256).meta.parameters)
 
 
 @st.cache_resource(max_entries=4, show_spinner="Identifying the noise from the flight's innovations (a minute for "
                                                 "15 minutes of flight) ...")
 def tuned_calibration(root: str, sha256: str, _cal: Calibration, cal_digest: str) -> Calibration:
     """``_cal`` with its in-flight bias, its filter figures and the noise identified per estimator
-    (:func:`estimators.tuning.tune_calibration`, as ``solarnav calibrate --tune``); cached by the log and the
+    (:func:`workflows.calibration.identify_noise`, as ``solarnav calibrate --tune``); cached by the log and the
     digest of the calibration's CALIB.json text."""
     del cal_digest  # the cache key of _cal
-    log = stored_log(root, sha256)
-    return tune_calibration(log, with_filter_figures(log, _cal))
+    return identify_noise(stored_log(root, sha256), _cal)
 
 
 # ---------------------------------------------------------------------------------------------------- estimators
@@ -290,15 +275,15 @@ def run_report(root: str, run_id: str) -> dict:
 
 
 @st.cache_resource(max_entries=4, show_spinner="Comparing with the reference ...")
-def run_comparison(root: str, sha256: str, run_id: str) -> Comparison:
-    """The run's estimators against the log's reference (:func:`app.comparison.compare`)."""
+def run_comparison(root: str, sha256: str, run_id: str) -> Evaluation:
+    """The run's estimators against the log's reference (the one evaluator, :func:`app.comparison.compare`)."""
     return comparison.compare(run_table(root, run_id, "states"), stored_log(root, sha256))
 
 
 @st.cache_data(max_entries=16, show_spinner=False)
 def rms_table(root: str, sha256: str, run_id: str) -> pd.DataFrame:
     """RMS errors in the layout of the paper's Table 2 (empty without a reference)."""
-    return comparison.rms_table(run_comparison(root, sha256, run_id).errors)
+    return comparison.rms_table(run_comparison(root, sha256, run_id))
 
 
 @st.cache_data(max_entries=16, show_spinner=False)

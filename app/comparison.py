@@ -1,6 +1,6 @@
-"""Estimator states against a reference (ground truth, else the autopilot's onboard estimate): the compared
-quantities on the estimators' time base, their errors, the RMS table in the layout of the paper's Table 2, and
-NIS summaries of the measurement updates. Pure pandas / NumPy (no Streamlit), tested directly.
+"""The dashboard's presentation of the one evaluator (:mod:`estimators.evaluation`): Table-2 labels and chart
+rows, the RMS table, NIS summaries of the measurement updates and the comparison of several runs. Pure pandas /
+NumPy (no Streamlit), tested directly.
 """
 
 from __future__ import annotations
@@ -8,24 +8,21 @@ from __future__ import annotations
 import io
 import json
 from collections.abc import Mapping
-from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
 
 from app.figures import TimeBase
 from calib.figures import chi2_quantile, mean_nis_band
-from estimators.environment import geodetic_to_ned
+from estimators.evaluation import MIN_GROUND_SPEED_M_S, Evaluation, evaluate
+from estimators.evaluation import QUANTITIES as EVALUATED
 from ingest import FlightLog
-from ingest.frames import wrap_angle_deg
 
-#: Compared quantities in the order and with the labels of the paper's Table 2: column -> (label, unit).
-QUANTITIES = {
-    "roll_deg": ("Roll Angle (deg)", "deg"), "pitch_deg": ("Pitch Angle (deg)", "deg"),
-    "yaw_deg": ("Yaw Angle (deg)", "deg"), "position_m": ("Position (m)", "m"), "alt_m": ("Height (m)", "m"),
-    "airspeed_m_s": ("Airspeed (m/s)", "m/s"), "ground_speed_m_s": ("Ground Speed (m/s)", "m/s"),
-    "course_deg": ("GPS Course (deg)", "deg"), "wind_m_s": ("Wind (m/s)", "m/s"),
-}
+#: Compared quantities in the order and with the labels of the paper's Table 2: error column -> (label, unit).
+QUANTITIES = dict(zip(EVALUATED, [
+    ("Roll Angle (deg)", "deg"), ("Pitch Angle (deg)", "deg"), ("Yaw Angle (deg)", "deg"), ("Position (m)", "m"),
+    ("Height (m)", "m"), ("Airspeed (m/s)", "m/s"), ("Ground Speed (m/s)", "m/s"), ("GPS Course (deg)", "deg"),
+    ("Wind (m/s)", "m/s")], strict=True))
 #: The dashboard's state charts: title -> rows (column, axis title with unit), top to bottom.
 STATE_PANELS = {
     "Attitude": [("roll_deg", "roll [deg]"), ("pitch_deg", "pitch [deg]"), ("yaw_deg", "yaw [deg]")],
@@ -36,160 +33,35 @@ STATE_PANELS = {
 #: Rows of the error charts: every :data:`QUANTITIES` column, its error with the unit.
 ERROR_ROWS = [(column, f"{label.split(' (')[0].lower()} error [{unit}]")
               for column, (label, unit) in QUANTITIES.items()]
-#: Angles: errors are wrapped to [-180, 180) deg.
-ANGLE_COLUMNS = ("roll_deg", "pitch_deg", "yaw_deg", "course_deg")
 #: Below this ground speed [m/s] the course is undefined (left NaN), as in the filters' course update.
-MIN_COURSE_SPEED_M_S = 3.0
-#: Reference streams by source: attitude, global position, local position (velocity), wind.
-REFERENCE_STREAMS = {
-    "truth": ("truth_attitude", "truth_global_position", "truth_local_position", "truth_wind"),
-    "onboard": ("onboard_attitude", "onboard_global_position", "onboard_local_position", "onboard_wind"),
-}
+MIN_COURSE_SPEED_M_S = MIN_GROUND_SPEED_M_S
 #: Probability covered by the NIS bands.
 NIS_BAND_PROBABILITY = 0.95
 
 
-@dataclass(frozen=True)
-class Comparison:
-    """Estimators and references side by side.
-
-    Attributes
-    ----------
-    quantities : dict of str -> pandas.DataFrame
-        Source (estimator name, ``"truth"``, ``"onboard"``) -> :func:`quantities` of its states.
-    errors : dict of str -> pandas.DataFrame
-        Estimator -> ``time_s`` and the error of every :data:`QUANTITIES` column against ``reference``
-        (position and wind: horizontal distance [m] / vector difference [m/s]).
-    reference : str or None
-        ``"truth"`` when the log has ground truth, else ``"onboard"``, else None (no errors).
-    """
-
-    quantities: dict[str, pd.DataFrame]
-    errors: dict[str, pd.DataFrame]
-    reference: str | None
+def compare(states: pd.DataFrame, log: FlightLog) -> Evaluation:
+    """All estimators of a run against the log's best reference (truth, else onboard), by the one evaluator's
+    convention (:func:`estimators.evaluation.evaluate` with its defaults)."""
+    return evaluate(states, log)
 
 
-def gps_origin(log: FlightLog) -> tuple[float, float, float] | None:
-    """Latitude, longitude [deg] and altitude [m] of the first good GPS fix (the local NED origin), or None."""
-    if not log.has("gps"):
-        return None
-    fixes = log["gps"][["lat_deg", "lon_deg", "alt_m"]].dropna()
-    return None if fixes.empty else tuple(float(v) for v in fixes.iloc[0])
+def rms_table(evaluation: Evaluation) -> pd.DataFrame:
+    """:meth:`~estimators.evaluation.Evaluation.rms`, one row per estimator, columns labelled as the paper's
+    Table 2 (NaN where an estimator or the reference lacks the quantity)."""
+    table = evaluation.rms().rename(columns={column: label for column, (label, _) in QUANTITIES.items()})
+    return table.rename_axis(None)
 
 
-def quantities(states: pd.DataFrame, origin: tuple[float, float, float] | None) -> pd.DataFrame:
-    """The compared quantities of one source's states (columns of ``estimators.core.results.STATE_COLUMNS``).
-
-    Returns
-    -------
-    pandas.DataFrame
-        ``time_s`` [s], ``roll_deg``, ``pitch_deg``, ``yaw_deg`` [deg], ``north_m``, ``east_m`` [m] about
-        ``origin`` (NaN without one), ``alt_m`` [m], ``ground_speed_m_s``, ``airspeed_m_s`` = |v - wind| [m/s],
-        ``course_deg`` [deg] (NaN below :data:`MIN_COURSE_SPEED_M_S`), ``wind_n_m_s``, ``wind_e_m_s`` [m/s].
-    """
-    def column(name: str) -> np.ndarray:
-        return states[name].to_numpy(dtype=float) if name in states else np.full(len(states), np.nan)
-
-    vn, ve, vd = column("vn_m_s"), column("ve_m_s"), column("vd_m_s")
-    wind_n, wind_e = column("wind_n_m_s"), column("wind_e_m_s")
-    ground_speed = np.hypot(vn, ve)
-    course = np.where(ground_speed >= MIN_COURSE_SPEED_M_S, np.degrees(np.arctan2(ve, vn)), np.nan)
-    if origin is None:
-        north = east = np.full(len(states), np.nan)
-    else:
-        north, east, _ = geodetic_to_ned(column("lat_deg"), column("lon_deg"), column("alt_m"), *origin)
-    return pd.DataFrame({
-        "time_s": column("time_s"), "roll_deg": column("roll_deg"), "pitch_deg": column("pitch_deg"),
-        "yaw_deg": column("yaw_deg"), "north_m": north, "east_m": east, "alt_m": column("alt_m"),
-        "ground_speed_m_s": ground_speed, "airspeed_m_s": np.sqrt((vn - wind_n) ** 2 + (ve - wind_e) ** 2 + vd**2),
-        "course_deg": wrap_angle_deg(course), "wind_n_m_s": wind_n, "wind_e_m_s": wind_e,
-    })
-
-
-def reference_states(log: FlightLog, source: str, time_s: np.ndarray) -> pd.DataFrame | None:
-    """A reference's states interpolated onto ``time_s`` [s] (NaN outside its streams; yaw unwrapped first).
-
-    Parameters
-    ----------
-    log : FlightLog
-        The flight.
-    source : {"truth", "onboard"}
-        Which reference.
-    time_s : numpy.ndarray
-        Times to interpolate to [s], increasing.
-
-    Returns
-    -------
-    pandas.DataFrame or None
-        State columns as the estimators write them; None when the log has none of the source's streams.
-    """
-    attitude, global_position, local_position, wind = REFERENCE_STREAMS[source]
-    if not any(log.has(name) for name in REFERENCE_STREAMS[source]):
-        return None
-    out = {"time_s": time_s}
-    wanted = {attitude: {"roll_deg": "roll_deg", "pitch_deg": "pitch_deg", "yaw_deg": "yaw_deg"},
-              global_position: {"lat_deg": "lat_deg", "lon_deg": "lon_deg", "alt_m": "alt_m"},
-              local_position: {"vx_m_s": "vn_m_s", "vy_m_s": "ve_m_s", "vz_m_s": "vd_m_s"},
-              wind: {"wind_n_m_s": "wind_n_m_s", "wind_e_m_s": "wind_e_m_s"}}
-    for stream, columns in wanted.items():
-        frame = log.streams.get(stream)
-        for column, name in columns.items():
-            if frame is None or column not in frame or len(frame) < 2:
-                out[name] = np.full(len(time_s), np.nan)
-                continue
-            values = frame[column].to_numpy(dtype=float)
-            if name == "yaw_deg":
-                values = np.degrees(np.unwrap(np.radians(values)))
-            interpolated = np.interp(time_s, frame.index.to_numpy(dtype=float), values, left=np.nan, right=np.nan)
-            out[name] = wrap_angle_deg(interpolated) if name == "yaw_deg" else interpolated
-    return pd.DataFrame(out)
-
-
-def errors(estimate: pd.DataFrame, reference: pd.DataFrame) -> pd.DataFrame:
-    """Errors of :func:`quantities` ``estimate`` against ``reference`` on the same times: differences (angles
-    wrapped), horizontal position distance [m] and wind vector difference [m/s]."""
-    out = {"time_s": estimate["time_s"].to_numpy(dtype=float)}
-    for column in QUANTITIES:
-        if column == "position_m":
-            out[column] = np.hypot(estimate["north_m"] - reference["north_m"], estimate["east_m"] - reference["east_m"])
-        elif column == "wind_m_s":
-            out[column] = np.hypot(estimate["wind_n_m_s"] - reference["wind_n_m_s"],
-                                   estimate["wind_e_m_s"] - reference["wind_e_m_s"])
-        else:
-            difference = estimate[column].to_numpy(dtype=float) - reference[column].to_numpy(dtype=float)
-            out[column] = wrap_angle_deg(difference) if column in ANGLE_COLUMNS else difference
-    return pd.DataFrame(out)
-
-
-def compare(states: pd.DataFrame, log: FlightLog) -> Comparison:
-    """All estimators of a run against the log's best reference (truth, else onboard)."""
-    origin = gps_origin(log)
-    names = [str(name) for name in states["estimator"].unique()]
-    by_name = {name: states.loc[states["estimator"] == name] for name in names}
-    result = {name: quantities(frame, origin) for name, frame in by_name.items()}
-    time_s = result[names[0]]["time_s"].to_numpy() if names else np.empty(0)
-    reference = None
-    for source in REFERENCE_STREAMS:
-        ref = reference_states(log, source, time_s)
-        if ref is not None:
-            result[source] = quantities(ref, origin)
-            reference = reference or source
-    errs = {}
-    if reference is not None:
-        for name in names:
-            own_times = by_name[name]["time_s"].to_numpy(dtype=float)
-            ref = (result[reference] if np.array_equal(own_times, time_s)
-                   else quantities(reference_states(log, reference, own_times), origin))
-            errs[name] = errors(result[name], ref)
-    return Comparison(quantities=result, errors=errs, reference=reference)
-
-
-def rms_table(errs: dict[str, pd.DataFrame]) -> pd.DataFrame:
-    """RMS of every error, one row per estimator, columns labelled as the paper's Table 2 (NaN where an
-    estimator or the reference lacks the quantity)."""
-    rows = {name: [float(np.sqrt(np.nanmean(np.square(frame[column])))) if frame[column].notna().any()
-                   else np.nan for column in QUANTITIES] for name, frame in errs.items()}
-    return pd.DataFrame.from_dict(rows, orient="index", columns=[label for label, _ in QUANTITIES.values()])
+def window_caption(evaluation: Evaluation, since_start_s: float) -> str:
+    """The RMS window in words, on the time since the log start (``since_start_s`` subtracted from the log
+    clock)."""
+    start_s, end_s = evaluation.window_s
+    if not np.isfinite(start_s):
+        return "no estimates"
+    first = min(float(frame["time_s"].min()) for frame in evaluation.errors.values()) if evaluation.errors else start_s
+    return (f"RMS over {start_s - since_start_s:.0f}-{end_s - since_start_s:.0f} s since the log start (the first "
+            f"{start_s - first:.0f} s of the estimates are the filters' convergence); positions about the "
+            "first good GPS fix")
 
 
 def nis_band(window: int, probability: float = NIS_BAND_PROBABILITY) -> tuple[float, float]:
@@ -268,7 +140,7 @@ def run_names(stored: pd.DataFrame) -> dict[str, str]:
             for run_id, name in zip(ids, names, strict=True)}
 
 
-def compare_runs(states_by_run: Mapping[str, pd.DataFrame], log: FlightLog) -> dict[str, Comparison]:
+def compare_runs(states_by_run: Mapping[str, pd.DataFrame], log: FlightLog) -> dict[str, Evaluation]:
     """:func:`compare` of every run (run name -> its states) of one log, in the given order."""
     return {name: compare(states, log) for name, states in states_by_run.items()}
 

@@ -17,10 +17,10 @@ import pandas as pd
 
 from app.workspace import Workspace
 from calib.calibration import Calibration
-from estimators.api import DEFAULT_ESTIMATORS, run_estimators
-from estimators.config import config_from_calibration
+from estimators.api import DEFAULT_ESTIMATORS
 from estimators.warmup import COMPILE_MESSAGE, SUN_SOLVER, cache_state, prepare_compile
 from ingest import FlightLog
+from workflows.replay import replay_log
 
 #: ``noise`` setting of a run with the filters' built-in noise (datasheet values).
 DEFAULT_NOISE = "default"
@@ -251,10 +251,8 @@ def replay(log: FlightLog, settings: RunSettings, calibration: Calibration | Non
             clock.start("computing diagnostics", "Computing the diagnostics ...")
 
     clock.start("checking inputs", say("Checking the inputs ..."))
-    configs = (None if calibration is None
-               else {name: config_from_calibration(calibration, estimator=name) for name in names})
-    result = run_estimators(log, estimators=names, configs=configs, heading=settings.heading,
-                            rate_hz=settings.rate_hz, allow_untrusted=settings.allow_untrusted, progress=stage)
+    result = replay_log(log, estimators=names, calibration=calibration, heading=settings.heading,
+                        rate_hz=settings.rate_hz, allow_untrusted=settings.allow_untrusted, progress=stage)
     clock.start("stacking the tables", "Stacking the tables ...")
     report = {name: dataclasses.asdict(result.reports[name]) for name in names}
     if own_clock:

@@ -17,8 +17,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from app.comparison import compare, rms_table
 from estimators.api import run_estimators
+from estimators.evaluation import evaluate
 from ingest.errors import InputError
 from ingest.sun_log import load_sun_device, with_sun
 from ingest.ulog_reader import load_flight_log
@@ -55,7 +55,7 @@ def save(directory: Path) -> None:
             print(f"{name}: {error}")
             continue
         result.states.to_parquet(directory / f"{name}.parquet")
-        rms = rms_table(compare(result.states, log).errors)
+        rms = evaluate(result.states, log).rms()
         rms.to_csv(directory / f"{name}_rms.csv")
         print(f"{name}: {len(result.states)} rows")
 

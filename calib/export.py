@@ -158,10 +158,14 @@ def calibration_from_dict(data: Any, source: str = "CALIB.json") -> Calibration:
                 for name, value in reader.obj(root, "tuning").items()} if has_figures else {})
 
 
+def calibration_text(cal: Calibration) -> str:
+    """``cal`` as CALIB.json text."""
+    return json.dumps(calibration_to_dict(cal), indent=2, allow_nan=False) + "\n"
+
+
 def write_calibration(cal: Calibration, path: str | os.PathLike) -> Path:
     """Write ``cal`` as CALIB.json atomically (:func:`ingest.files.atomic_write_text`); returns the path."""
-    text = json.dumps(calibration_to_dict(cal), indent=2, allow_nan=False) + "\n"
-    return atomic_write_text(path, text)
+    return atomic_write_text(path, calibration_text(cal))
 
 
 def read_calibration(path: str | os.PathLike) -> Calibration:

@@ -341,9 +341,9 @@ def unwritten_notes(figures: dict[str, Figure], autopilot: str) -> list[str]:
     return notes
 
 
-def write_px4_params(params: list[AutopilotParam], path: str | os.PathLike, header: str = "",
-                     vehicle_id: int = 1, component_id: int = 1) -> Path:
-    """Write a QGroundControl .params file atomically; ``header`` lines become ``#`` comments after the title.
+def px4_params_text(params: list[AutopilotParam], header: str = "", vehicle_id: int = 1,
+                    component_id: int = 1) -> str:
+    """A QGroundControl .params file's text; ``header`` lines become ``#`` comments after the title.
 
     Rows are ``vehicle-id<TAB>component-id<TAB>NAME<TAB>VALUE<TAB>TYPE`` (TYPE the MAV_PARAM_TYPE), each preceded
     by its ``# NAME: ...`` comment lines.
@@ -354,16 +354,26 @@ def write_px4_params(params: list[AutopilotParam], path: str | os.PathLike, head
     for p in params:
         lines += [f"# {p.name}: {comment}" for comment in p.comments]
         lines.append(f"{vehicle_id}\t{component_id}\t{p.name}\t{_format(p)}\t{p.type}")
-    return atomic_write_text(path, "\n".join(lines) + "\n")
+    return "\n".join(lines) + "\n"
 
 
-def write_ardupilot_parm(params: list[AutopilotParam], path: str | os.PathLike, header: str = "") -> Path:
-    """Write an ArduPilot .parm file atomically: ``NAME VALUE`` lines, ``header`` and comments as ``#`` lines."""
+def ardupilot_parm_text(params: list[AutopilotParam], header: str = "") -> str:
+    """An ArduPilot .parm file's text: ``NAME VALUE`` lines, ``header`` and comments as ``#`` lines."""
     lines = [f"# {line}".rstrip() for line in header.splitlines()]
     for p in params:
         lines += [f"# {p.name}: {comment}" for comment in p.comments]
         lines.append(f"{p.name} {_format(p)}")
-    return atomic_write_text(path, "\n".join(lines) + "\n")
+    return "\n".join(lines) + "\n"
+
+
+def write_px4_params(params: list[AutopilotParam], path: str | os.PathLike, header: str = "") -> Path:
+    """Write :func:`px4_params_text` to ``path`` atomically."""
+    return atomic_write_text(path, px4_params_text(params, header))
+
+
+def write_ardupilot_parm(params: list[AutopilotParam], path: str | os.PathLike, header: str = "") -> Path:
+    """Write :func:`ardupilot_parm_text` to ``path`` atomically."""
+    return atomic_write_text(path, ardupilot_parm_text(params, header))
 
 
 def read_px4_params(path: str | os.PathLike) -> dict[str, AutopilotParam]:

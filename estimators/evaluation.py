@@ -1,14 +1,22 @@
-"""Accuracy of estimator outputs against a log's ground truth, in the quantities of the paper's Table 2.
+"""The one evaluator: estimator outputs against a reference (the log's ground truth, else the autopilot's onboard
+estimate) in the quantities of the paper's Table 2. The dashboard, ``solarnav batch``, the tests and the benchmarks
+all call :func:`evaluate`; its convention (docs/evaluation.md) has two explicit parameters:
 
-Works on the ``states`` table of :func:`estimators.api.run_estimators` and a FlightLog that carries truth streams
-(``truth_attitude``, ``truth_global_position``, ``truth_local_position`` and ``truth_wind``; simulator and SITL
-logs). Truth is interpolated to the output epochs (angles unwrapped first).
+* the **window**: RMS figures skip the filters' convergence, the first :data:`DEFAULT_CONVERGENCE_S` seconds of the
+  estimates, but always keep the last third of a run (a short real log is still evaluated), to the last estimate;
+* the **position origin**: the local NED frame of the horizontal position error is tangent at the first good GPS fix
+  (else at the first estimate with a position).
+
+The reference is interpolated to the estimates' epochs (yaw unwrapped first; NaN outside its streams). Airspeed,
+course and wind errors count only in flight: where the reference's ground speed exceeds
+:data:`MIN_GROUND_SPEED_M_S` (on the ground the wind is unobservable, held or at its prior, and the course undefined).
 """
 
 from __future__ import annotations
 
 import json
 import math
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -17,6 +25,7 @@ import pandas as pd
 from estimators import environment
 from estimators.config import EstimatorConfig, NoiseConfig
 from ingest.flightlog import FlightLog
+from ingest.frames import wrap_angle_deg
 
 #: Table 2 of the paper: RMS errors per estimator (deg, deg, deg, m, m, m/s, m/s, deg, m/s).
 PAPER_TABLE_2 = {
@@ -29,100 +38,248 @@ PAPER_TABLE_2 = {
                             "height_m": 0.98, "airspeed_m_s": 0.5, "ground_speed_m_s": 0.37, "course_deg": 1.48,
                             "wind_m_s": 0.15},
 }
-#: Quantities of Table 2, in order.
+#: Quantities of Table 2, in order: the error columns of :class:`Evaluation` and of its RMS table.
 QUANTITIES = ("roll_deg", "pitch_deg", "yaw_deg", "position_m", "height_m", "airspeed_m_s", "ground_speed_m_s",
               "course_deg", "wind_m_s")
-#: Course, airspeed and wind errors are only meaningful above this true ground speed [m/s] (in flight;
-#: docs/estimators.md, 'Sensor plan' and 'Wind on the ground').
+#: Errors wrapped to [-180, 180) deg.
+ANGLE_QUANTITIES = ("roll_deg", "pitch_deg", "yaw_deg", "course_deg")
+#: Errors counted only in flight (reference ground speed above :data:`MIN_GROUND_SPEED_M_S`).
+IN_FLIGHT_QUANTITIES = ("airspeed_m_s", "course_deg", "wind_m_s")
+#: Course, airspeed and wind errors are only meaningful above this ground speed [m/s] (in flight;
+#: docs/estimators.md, 'Sensor plan' and 'Wind on the ground'); below it a course is left NaN.
 MIN_GROUND_SPEED_M_S = 3.0
+#: Convergence excluded at the start of the RMS window [s].
+DEFAULT_CONVERGENCE_S = 60.0
+#: Reference streams by source, in order of preference: attitude, global position, local position (velocity), wind.
+REFERENCE_STREAMS = {
+    "truth": ("truth_attitude", "truth_global_position", "truth_local_position", "truth_wind"),
+    "onboard": ("onboard_attitude", "onboard_global_position", "onboard_local_position", "onboard_wind"),
+}
 
 
-def _wrap_deg(angle):
-    return (np.asarray(angle) + 180.0) % 360.0 - 180.0
+@dataclass(frozen=True)
+class Evaluation:
+    """Estimators and references side by side, and the errors of the estimators against the reference.
+
+    Attributes
+    ----------
+    quantities : dict of str -> pandas.DataFrame
+        Source (estimator name, ``"truth"``, ``"onboard"``) -> :func:`quantities` of its states.
+    errors : dict of str -> pandas.DataFrame
+        Estimator -> ``time_s`` [s] and the error of every :data:`QUANTITIES` column against ``reference`` at every
+        epoch (position and wind: horizontal distance [m] / vector difference [m/s]; in-flight quantities NaN on the
+        ground).
+    reference : str or None
+        ``"truth"``, ``"onboard"``, or None (no reference: no errors).
+    window_s : tuple of float
+        Start and end of the RMS window on the log clock [s] (NaN without estimates).
+    origin : tuple of float or None
+        Latitude, longitude [deg] and altitude [m] of the local NED origin of the positions.
+    """
+
+    quantities: dict[str, pd.DataFrame]
+    errors: dict[str, pd.DataFrame]
+    reference: str | None
+    window_s: tuple[float, float]
+    origin: tuple[float, float, float] | None
+
+    def rms(self) -> pd.DataFrame:
+        """RMS of every error over :attr:`window_s`: index estimator, columns :data:`QUANTITIES` (NaN where an
+        estimator or the reference lacks the quantity)."""
+        rows = {}
+        for name, frame in self.errors.items():
+            t = frame["time_s"].to_numpy(dtype=float)
+            inside = (t >= self.window_s[0]) & (t <= self.window_s[1])
+            rows[name] = [_rms(frame[column].to_numpy(dtype=float)[inside]) for column in QUANTITIES]
+        return pd.DataFrame.from_dict(rows, orient="index", columns=list(QUANTITIES)).rename_axis("estimator")
 
 
-def truth_at(flight_log: FlightLog, time_s: np.ndarray, origin_deg_m: tuple[float, float, float]) -> pd.DataFrame:
-    """Truth interpolated to ``time_s``: Euler angles [deg], NED position relative to ``origin_deg_m``
-    (lat, lon, alt) [m], NED velocity [m/s] and wind [m/s]."""
-    att = flight_log["truth_attitude"]
-    t_att = att.index.to_numpy(dtype=float)
-    out = {"time_s": time_s}
-    for column in ("roll_deg", "pitch_deg", "yaw_deg"):
-        unwrapped = np.degrees(np.unwrap(np.radians(att[column].to_numpy(dtype=float))))
-        out[column] = np.interp(time_s, t_att, unwrapped)
-    pos = flight_log["truth_global_position"]
-    north, east, _ = environment.geodetic_to_ned(pos["lat_deg"].to_numpy(), pos["lon_deg"].to_numpy(),
-                                                 pos["alt_m"].to_numpy(), *origin_deg_m)
-    t_pos = pos.index.to_numpy(dtype=float)
-    out["north_m"] = np.interp(time_s, t_pos, north)
-    out["east_m"] = np.interp(time_s, t_pos, east)
-    out["alt_m"] = np.interp(time_s, t_pos, pos["alt_m"].to_numpy(dtype=float))
-    local = flight_log["truth_local_position"]
-    t_loc = local.index.to_numpy(dtype=float)
-    for column, name in (("vx_m_s", "vn_m_s"), ("vy_m_s", "ve_m_s"), ("vz_m_s", "vd_m_s")):
-        out[name] = np.interp(time_s, t_loc, local[column].to_numpy(dtype=float))
-    if flight_log.has("truth_wind"):
-        wind = flight_log["truth_wind"]
-        t_wind = wind.index.to_numpy(dtype=float)
-        out["wind_n_m_s"] = np.interp(time_s, t_wind, wind["wind_n_m_s"].to_numpy(dtype=float))
-        out["wind_e_m_s"] = np.interp(time_s, t_wind, wind["wind_e_m_s"].to_numpy(dtype=float))
+def _rms(values: np.ndarray) -> float:
+    finite = values[np.isfinite(values)]
+    return float(np.sqrt(np.mean(np.square(finite)))) if finite.size else math.nan
+
+
+def rms_window(time_s: np.ndarray, convergence_s: float = DEFAULT_CONVERGENCE_S) -> tuple[float, float]:
+    """The RMS window over the epochs ``time_s`` [s]: from ``convergence_s`` after the first (at most two thirds of
+    the span, so that the last third is always kept) to the last; NaN for no epochs."""
+    if len(time_s) == 0:
+        return math.nan, math.nan
+    first, last = float(np.min(time_s)), float(np.max(time_s))
+    return first + min(convergence_s, 2.0 * (last - first) / 3.0), last
+
+
+def position_origin(log: FlightLog, states: pd.DataFrame | None = None) -> tuple[float, float, float] | None:
+    """Latitude, longitude [deg] and altitude [m] of the first good GPS fix, else of the first estimate with a
+    position; None when there is neither."""
+    candidates = [log["gps"]] if log.has("gps") else []
+    if states is not None:
+        candidates.append(states)
+    for frame in candidates:
+        if not {"lat_deg", "lon_deg", "alt_m"} <= set(frame.columns):
+            continue
+        fixes = frame[["lat_deg", "lon_deg", "alt_m"]].dropna()
+        if not fixes.empty:
+            return tuple(float(v) for v in fixes.iloc[0])
+    return None
+
+
+def quantities(states: pd.DataFrame, origin: tuple[float, float, float] | None) -> pd.DataFrame:
+    """The compared quantities of one source's states (columns of ``estimators.core.results.STATE_COLUMNS``).
+
+    Returns
+    -------
+    pandas.DataFrame
+        ``time_s`` [s], ``roll_deg``, ``pitch_deg``, ``yaw_deg`` [deg], ``north_m``, ``east_m`` [m] about
+        ``origin`` (NaN without one), ``alt_m`` [m], ``ground_speed_m_s``, ``airspeed_m_s`` = |v - wind| [m/s],
+        ``course_deg`` [deg] (NaN below :data:`MIN_GROUND_SPEED_M_S`), ``wind_n_m_s``, ``wind_e_m_s`` [m/s].
+    """
+    def column(name: str) -> np.ndarray:
+        return states[name].to_numpy(dtype=float) if name in states else np.full(len(states), np.nan)
+
+    vn, ve, vd = column("vn_m_s"), column("ve_m_s"), column("vd_m_s")
+    wind_n, wind_e = column("wind_n_m_s"), column("wind_e_m_s")
+    ground_speed = np.hypot(vn, ve)
+    course = np.where(ground_speed >= MIN_GROUND_SPEED_M_S, np.degrees(np.arctan2(ve, vn)), np.nan)
+    if origin is None:
+        north = east = np.full(len(states), np.nan)
     else:
-        out["wind_n_m_s"] = out["wind_e_m_s"] = np.zeros(len(time_s))
+        north, east, _ = environment.geodetic_to_ned(column("lat_deg"), column("lon_deg"), column("alt_m"), *origin)
+    return pd.DataFrame({
+        "time_s": column("time_s"), "roll_deg": column("roll_deg"), "pitch_deg": column("pitch_deg"),
+        "yaw_deg": column("yaw_deg"), "north_m": north, "east_m": east, "alt_m": column("alt_m"),
+        "ground_speed_m_s": ground_speed, "airspeed_m_s": np.sqrt((vn - wind_n) ** 2 + (ve - wind_e) ** 2 + vd**2),
+        "course_deg": wrap_angle_deg(course), "wind_n_m_s": wind_n, "wind_e_m_s": wind_e,
+    })
+
+
+def reference_states(log: FlightLog, source: str, time_s: np.ndarray) -> pd.DataFrame | None:
+    """A reference's states interpolated onto ``time_s`` [s] (NaN outside its streams; yaw unwrapped first).
+
+    Parameters
+    ----------
+    log : FlightLog
+        The flight.
+    source : {"truth", "onboard"}
+        Which reference (:data:`REFERENCE_STREAMS`).
+    time_s : numpy.ndarray
+        Times to interpolate to [s], increasing.
+
+    Returns
+    -------
+    pandas.DataFrame or None
+        State columns as the estimators write them; None when the log has none of the source's streams.
+    """
+    attitude, global_position, local_position, wind = REFERENCE_STREAMS[source]
+    if not any(log.has(name) for name in REFERENCE_STREAMS[source]):
+        return None
+    out = {"time_s": time_s}
+    wanted = {attitude: {"roll_deg": "roll_deg", "pitch_deg": "pitch_deg", "yaw_deg": "yaw_deg"},
+              global_position: {"lat_deg": "lat_deg", "lon_deg": "lon_deg", "alt_m": "alt_m"},
+              local_position: {"vx_m_s": "vn_m_s", "vy_m_s": "ve_m_s", "vz_m_s": "vd_m_s"},
+              wind: {"wind_n_m_s": "wind_n_m_s", "wind_e_m_s": "wind_e_m_s"}}
+    for stream, columns in wanted.items():
+        frame = log.streams.get(stream)
+        for column, name in columns.items():
+            if frame is None or column not in frame or len(frame) < 2:
+                out[name] = np.full(len(time_s), np.nan)
+                continue
+            values = frame[column].to_numpy(dtype=float)
+            if name == "yaw_deg":
+                values = np.degrees(np.unwrap(np.radians(values)))
+            interpolated = np.interp(time_s, frame.index.to_numpy(dtype=float), values, left=np.nan, right=np.nan)
+            out[name] = wrap_angle_deg(interpolated) if name == "yaw_deg" else interpolated
     return pd.DataFrame(out)
 
 
-def rms_errors(states: pd.DataFrame, flight_log: FlightLog, *, after_s: float = 60.0) -> pd.DataFrame:
-    """RMS error per estimator and Table 2 quantity, over epochs ``after_s`` seconds after the first one.
+def errors(estimate: pd.DataFrame, reference: pd.DataFrame) -> pd.DataFrame:
+    """Errors of :func:`quantities` ``estimate`` against ``reference`` on the same times: differences (angles
+    wrapped), horizontal position distance [m], height difference [m] and wind vector difference [m/s]; the
+    :data:`IN_FLIGHT_QUANTITIES` NaN where the reference's ground speed is not above :data:`MIN_GROUND_SPEED_M_S`."""
+    moving = reference["ground_speed_m_s"].to_numpy(dtype=float) > MIN_GROUND_SPEED_M_S
+    out = {"time_s": estimate["time_s"].to_numpy(dtype=float)}
+    for quantity in QUANTITIES:
+        if quantity == "position_m":
+            error = np.hypot(estimate["north_m"] - reference["north_m"], estimate["east_m"] - reference["east_m"])
+        elif quantity == "wind_m_s":
+            error = np.hypot(estimate["wind_n_m_s"] - reference["wind_n_m_s"],
+                             estimate["wind_e_m_s"] - reference["wind_e_m_s"])
+        else:
+            column = "alt_m" if quantity == "height_m" else quantity
+            error = estimate[column].to_numpy(dtype=float) - reference[column].to_numpy(dtype=float)
+            error = wrap_angle_deg(error) if quantity in ANGLE_QUANTITIES else error
+        error = np.asarray(error, dtype=float)
+        out[quantity] = np.where(moving, error, np.nan) if quantity in IN_FLIGHT_QUANTITIES else error
+    return pd.DataFrame(out)
+
+
+def evaluate(states: pd.DataFrame, log: FlightLog, *, reference: str = "auto",
+             convergence_s: float = DEFAULT_CONVERGENCE_S,
+             origin: tuple[float, float, float] | None = None) -> Evaluation:
+    """Every estimator of ``states`` against the log's reference.
 
     Parameters
     ----------
     states : pandas.DataFrame
         :func:`estimators.api.run_estimators` states (``estimator`` column; one estimator's table without it is
-        accepted too).
-    flight_log : FlightLog
-        The log with truth streams.
-    after_s : float
-        Convergence time excluded at the start [s].
+        accepted too and named ``"estimator"``).
+    log : FlightLog
+        The flight.
+    reference : {"auto", "truth", "onboard"}
+        The reference; ``"auto"`` takes truth when the log has it, else the onboard estimate.
+    convergence_s : float
+        Convergence excluded at the start of the RMS window [s] (:func:`rms_window`).
+    origin : tuple of float, optional
+        The local NED origin (lat, lon [deg], alt [m]); default :func:`position_origin`.
 
     Returns
     -------
-    pandas.DataFrame
-        Index estimator, columns :data:`QUANTITIES`; NaN where an estimator lacks the quantity.
+    Evaluation
+        With every available reference's quantities (for charts) and the errors against ``reference`` (none when
+        the log lacks it).
     """
+    if reference not in ("auto", *REFERENCE_STREAMS):
+        raise ValueError(f"reference must be 'auto', 'truth' or 'onboard', got {reference!r}")
     if "estimator" not in states.columns:
         states = states.assign(estimator="estimator")
-    rows = {}
-    for name, group in states.groupby("estimator", observed=True, sort=False):
-        group = group[group["time_s"] >= group["time_s"].iloc[0] + after_s]
-        t = group["time_s"].to_numpy(dtype=float)
-        lat = group["lat_deg"].to_numpy(dtype=float)
-        origin = (float(np.nanmedian(lat)) if np.isfinite(lat).any() else 0.0,
-                  float(np.nanmedian(group["lon_deg"])) if np.isfinite(lat).any() else 0.0, 0.0)
-        truth = truth_at(flight_log, t, origin)
-        rms = lambda e: float(np.sqrt(np.nanmean(np.asarray(e, dtype=float) ** 2)))  # noqa: E731
-        row = {c: rms(_wrap_deg(group[c].to_numpy() - truth[c].to_numpy())) for c in ("roll_deg", "pitch_deg",
-                                                                                          "yaw_deg")}
-        north, east, _ = environment.geodetic_to_ned(lat, group["lon_deg"].to_numpy(), group["alt_m"].to_numpy(),
-                                                     *origin)
-        row["position_m"] = rms(np.hypot(north - truth["north_m"], east - truth["east_m"]))
-        row["height_m"] = rms(group["alt_m"].to_numpy() - truth["alt_m"].to_numpy())
-        v = group[["vn_m_s", "ve_m_s", "vd_m_s"]].to_numpy(dtype=float)
-        v_true = truth[["vn_m_s", "ve_m_s", "vd_m_s"]].to_numpy()
-        w = group[["wind_n_m_s", "wind_e_m_s"]].to_numpy(dtype=float)
-        w_true = truth[["wind_n_m_s", "wind_e_m_s"]].to_numpy()
-        vg, vg_true = np.hypot(v[:, 0], v[:, 1]), np.hypot(v_true[:, 0], v_true[:, 1])
-        row["ground_speed_m_s"] = rms(vg - vg_true)
-        # on the ground the wind is unobservable (held, or its prior before the first flight)
-        moving = vg_true > MIN_GROUND_SPEED_M_S
-        air = np.linalg.norm(v - np.column_stack([w, np.zeros(len(w))]), axis=1)
-        air_true = np.linalg.norm(v_true - np.column_stack([w_true, np.zeros(len(w_true))]), axis=1)
-        course = np.degrees(np.arctan2(v[:, 1], v[:, 0]))
-        course_true = np.degrees(np.arctan2(v_true[:, 1], v_true[:, 0]))
-        for quantity, error in (("airspeed_m_s", air - air_true), ("course_deg", _wrap_deg(course - course_true)),
-                                ("wind_m_s", np.linalg.norm(w - w_true, axis=1))):
-            row[quantity] = rms(error[moving]) if moving.any() else float("nan")
-        rows[name] = row
-    return pd.DataFrame.from_dict(rows, orient="index").loc[:, list(QUANTITIES)]
+    origin = position_origin(log, states) if origin is None else origin
+    names = [str(name) for name in states["estimator"].unique()]
+    by_name = {name: states.loc[states["estimator"] == name] for name in names}
+    result = {name: quantities(frame, origin) for name, frame in by_name.items()}
+    time_s = result[names[0]]["time_s"].to_numpy() if names else np.empty(0)
+    available = []
+    for source in REFERENCE_STREAMS:
+        ref = reference_states(log, source, time_s)
+        if ref is not None:
+            result[source] = quantities(ref, origin)
+            available.append(source)
+    chosen = (available[0] if available else None) if reference == "auto" else (
+        reference if reference in available else None)
+    errs = {}
+    if chosen is not None:
+        for name in names:
+            own_times = by_name[name]["time_s"].to_numpy(dtype=float)
+            ref = (result[chosen] if np.array_equal(own_times, time_s)
+                   else quantities(reference_states(log, chosen, own_times), origin))
+            errs[name] = errors(result[name], ref)
+    all_times = states["time_s"].to_numpy(dtype=float)
+    return Evaluation(quantities=result, errors=errs, reference=chosen,
+                      window_s=rms_window(all_times, convergence_s), origin=origin)
+
+
+def rms_errors(states: pd.DataFrame, flight_log: FlightLog, *,
+               after_s: float = DEFAULT_CONVERGENCE_S) -> pd.DataFrame:
+    """RMS error against ground truth per estimator and Table 2 quantity (:func:`evaluate` with ``reference="truth"``
+    and ``convergence_s=after_s``): index estimator, columns :data:`QUANTITIES`.
+
+    Raises
+    ------
+    ValueError
+        The log has no ground truth.
+    """
+    evaluation = evaluate(states, flight_log, reference="truth", convergence_s=after_s)
+    if evaluation.reference is None:
+        raise ValueError(f"{flight_log.meta.source}: no ground truth to evaluate against")
+    return evaluation.rms()
 
 
 #: Random walk of the z accelerometer bias used with simulated fixed-wing flights [m/s^3/sqrt(Hz)]: absorbs the

@@ -7,6 +7,7 @@ import pandas as pd
 import pytest
 
 from app import comparison, sun_compare
+from estimators import evaluation
 from ingest import SunDevice
 from ingest.flightlog import FlightLog
 from tests.app_logs import truth_only_log
@@ -18,7 +19,7 @@ def _log() -> FlightLog:
 
 def _estimate(log: FlightLog, name: str, yaw_deg: float, alt_offset_m: float) -> pd.DataFrame:
     time_s = np.arange(10.0, 10.0 + 79.0, 0.02)
-    reference = comparison.reference_states(log, "truth", time_s)
+    reference = evaluation.reference_states(log, "truth", time_s)
     return reference.assign(estimator=name, yaw_deg=yaw_deg, alt_m=reference["alt_m"] + alt_offset_m)
 
 
@@ -28,7 +29,7 @@ def test_errors_wrap_angles_and_rms_follows_table2_layout():
                        ignore_index=True)
     result = comparison.compare(states, log)
     assert result.reference == "truth" and set(result.quantities) == {"three_stage", "full_state_direct", "truth"}
-    table = comparison.rms_table(result.errors)
+    table = comparison.rms_table(result)
     assert list(table.columns) == [label for label, _ in comparison.QUANTITIES.values()]
     assert table.loc["three_stage", "Yaw Angle (deg)"] == pytest.approx(2.0)  # -179 vs 179 wraps to 2 deg
     assert table.loc["full_state_direct", "Yaw Angle (deg)"] == pytest.approx(1.0)
@@ -41,10 +42,10 @@ def test_errors_wrap_angles_and_rms_follows_table2_layout():
 
 def test_reference_outside_its_streams_is_nan_and_course_needs_speed():
     log = _log()
-    reference = comparison.reference_states(log, "truth", np.array([0.0, 20.0, 1e4]))
+    reference = evaluation.reference_states(log, "truth", np.array([0.0, 20.0, 1e4]))
     assert np.isnan(reference["roll_deg"].iloc[0]) and np.isnan(reference["roll_deg"].iloc[2])
-    assert comparison.reference_states(log, "onboard", np.array([20.0])) is None
-    slow = comparison.quantities(pd.DataFrame({"time_s": [0.0], "vn_m_s": [1.0], "ve_m_s": [1.0]}), None)
+    assert evaluation.reference_states(log, "onboard", np.array([20.0])) is None
+    slow = evaluation.quantities(pd.DataFrame({"time_s": [0.0], "vn_m_s": [1.0], "ve_m_s": [1.0]}), None)
     assert np.isnan(slow["course_deg"].iloc[0]) and np.isnan(slow["north_m"].iloc[0])
 
 

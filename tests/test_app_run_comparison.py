@@ -15,6 +15,7 @@ from streamlit.testing.v1 import AppTest
 
 from app import adapters, comparison, figures, runs, samples, session, tables
 from app.workspace import Workspace
+from estimators import evaluation
 from estimators.core.results import DIAGNOSTIC_COLUMNS, STATE_COLUMNS
 from ingest.flightlog import FlightLog
 from tests.app_logs import truth_only_log
@@ -31,7 +32,7 @@ def _states(log: FlightLog, offsets: dict[str, tuple[float, float]], step: int =
     """Estimators following the truth with a height offset [m] and a yaw offset [deg] each."""
     truth = log["truth_global_position"].iloc[::step]
     time_s = truth.index.to_numpy(float)
-    reference = comparison.reference_states(log, "truth", time_s)
+    reference = evaluation.reference_states(log, "truth", time_s)
     parts = [reference.assign(estimator=name, alt_m=reference["alt_m"] + d_alt, yaw_deg=reference["yaw_deg"] + d_yaw)
              for name, (d_alt, d_yaw) in offsets.items()]
     return pd.concat(parts, ignore_index=True)[list(STATE_COLUMNS)]
@@ -114,7 +115,7 @@ def test_rms_comparison_of_synthetic_runs_gives_baseline_deltas():
         "default": _states(log, {"three_stage": (5.0, 2.0), "full_state_indirect": (2.0, 1.0)}),
         "calibrated": _states(log, {"three_stage": (5.0, 1.0), "full_state_indirect": (4.0, 1.0),
                                     "full_state_direct": (1.0, 0.0)})}, log)
-    rms = {name: comparison.rms_table(result.errors) for name, result in results.items()}
+    rms = {name: comparison.rms_table(result) for name, result in results.items()}
     table = comparison.rms_comparison(rms, "default")
     assert list(table.columns) == list(comparison.RMS_COMPARISON_COLUMNS)
     n_quantities = len(comparison.QUANTITIES)
@@ -196,7 +197,7 @@ def _store_run(workspace: Workspace, sha256: str, log: FlightLog, alt_offset_m: 
 
 
 def _states_on(log: FlightLog, time_s: np.ndarray, alt_offset_m: float) -> pd.DataFrame:
-    reference = comparison.reference_states(log, "truth", time_s)
+    reference = evaluation.reference_states(log, "truth", time_s)
     parts = [reference.assign(estimator=name, alt_m=reference["alt_m"] + alt_offset_m * (k + 1))
              for k, name in enumerate(ESTIMATORS)]
     states = pd.concat(parts, ignore_index=True)[list(STATE_COLUMNS)]

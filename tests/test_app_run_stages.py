@@ -57,7 +57,7 @@ def fake(monkeypatch):
         frame = pd.DataFrame({"estimator": pd.Categorical(list(estimators)), "time_s": [0.0] * len(estimators)})
         return SimpleNamespace(states=frame, diagnostics=frame, reports={name: _Report(name) for name in estimators})
 
-    monkeypatch.setattr(runs, "run_estimators", run_estimators)
+    monkeypatch.setattr(runs, "replay_log", run_estimators)
 
     class Workspace:
         def add_run(self, *args):

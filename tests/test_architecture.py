@@ -1,4 +1,5 @@
-"""The layer rule: ingest -> calib -> estimators -> (sim, app); no computation layer imports the UI toolkits."""
+"""The layer rule: ingest -> calib -> estimators -> workflows -> app (sim beside workflows); no computation layer
+imports the UI toolkits."""
 
 from __future__ import annotations
 
@@ -17,11 +18,14 @@ ALLOWED = {
     "ingest": {"ingest"},
     "calib": {"ingest", "calib"},
     "estimators": {"ingest", "calib", "estimators"},
+    "workflows": {"ingest", "calib", "estimators", "workflows"},
     "sim": {"ingest", "calib", "estimators", "sim"},
-    "app": {"ingest", "calib", "estimators", "sim", "app"},
+    "app": {"ingest", "calib", "estimators", "workflows", "sim", "app"},
 }
 PROJECT_PACKAGES = set(ALLOWED)
 UI_MODULES = {"streamlit", "plotly", "tsdownsample"}
+#: The front-ends' own toolkits, which the workflow layer never imports.
+FRONT_END_MODULES = {"argparse", "dask", "distributed"}
 
 
 def _imported_top_modules(path):
@@ -43,6 +47,24 @@ def test_layers_import_only_downwards(package):
                 violations.append(f"{path.relative_to(REPO_DIR)}:{lineno} imports {module}")
             if package != "app" and module in UI_MODULES:
                 violations.append(f"{path.relative_to(REPO_DIR)}:{lineno} imports UI module {module}")
+            if package == "workflows" and module in FRONT_END_MODULES:
+                violations.append(f"{path.relative_to(REPO_DIR)}:{lineno} imports front-end module {module}")
+    assert not violations, "\n".join(violations)
+
+
+#: The steps a workflow assembles (docs/workflows.md): a front-end calls the workflow, never these.
+WORKFLOW_STEPS = {"run_estimators", "config_from_calibration", "tune_calibration", "with_filter_figures",
+                  "tau_replay", "choose_tau", "calibrate", "px4_parameters", "ardupilot_parameters",
+                  "write_calibration", "calibration_to_dict"}
+
+
+def test_no_front_end_assembles_workflow_steps():
+    violations = []
+    for path in sorted((REPO_DIR / "app").rglob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text(), filename=str(path))):
+            if isinstance(node, ast.ImportFrom) and node.module and not node.module.startswith("workflows"):
+                violations += [f"{path.relative_to(REPO_DIR)}:{node.lineno} imports {alias.name} from {node.module}"
+                               for alias in node.names if alias.name in WORKFLOW_STEPS]
     assert not violations, "\n".join(violations)
 
 

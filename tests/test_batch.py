@@ -94,7 +94,7 @@ def test_the_outputs_and_summary_equal_per_log_calibrate_and_replay_runs(batch, 
     rows = fleet_table[fleet_table["sha256"] == log.meta.sha256].set_index("estimator")
     gyro_sigma = read_calibration(calib).sensors["gyroscope"].sigma
     assert rows["noise_gyroscope_x_rad_s"].eq(gyro_sigma[0]).all()
-    rms = rms_table(compare(cli_states, log).errors)  # the dashboard's comparison: truth is the reference
+    rms = rms_table(compare(cli_states, log))  # the dashboard's comparison: truth is the reference
     for estimator in ESTIMATORS:
         for quantity, label in zip(QUANTITIES, rms.columns, strict=True):
             assert rows.at[estimator, f"rms_truth_{quantity}"] == pytest.approx(rms.at[estimator, label],

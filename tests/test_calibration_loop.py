@@ -19,7 +19,7 @@ import pandas as pd
 import pytest
 from scipy.stats import chi2
 
-import app.commands.replay as replay_command
+import workflows.replay as replay_workflow
 from app.cli import EXIT_BAD_INPUT, main
 from calib.bias import local_gravity
 from calib.calibration import calibrate
@@ -134,7 +134,7 @@ def test_replay_cli_applies_the_calib_json_tau(cell_cal, tmp_path, monkeypatch, 
         results.append(run_estimators(*args, **kwargs))
         return results[-1]
 
-    monkeypatch.setattr(replay_command, "run_estimators", spy)
+    monkeypatch.setattr(replay_workflow, "run_estimators", spy)
     cal = dataclasses.replace(cell_cal, figures=calibration_figures(cell_cal))
     for tau in (3.0, 7.0):
         path = _write_edited(cal, tmp_path / f"tau_{tau:g}.json", _set_figure_tau(tau))

@@ -9,7 +9,7 @@ import numpy as np
 import pandas as pd
 
 from app.cli import main
-from app.commands.replay import FLOAT64_COLUMNS
+from workflows.replay import FLOAT64_COLUMNS
 
 SAMPLE = Path(__file__).resolve().parents[1] / "sample_logs" / "failed_cell.ulg"
 

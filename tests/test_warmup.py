@@ -159,7 +159,7 @@ def test_dashboard_progress_says_compiling_only_for_a_cold_filter(monkeypatch):
     def stop(*args, **kwargs):
         raise _Stop
 
-    monkeypatch.setattr(runs, "run_estimators", stop)
+    monkeypatch.setattr(runs, "replay_log", stop)
     texts = []
     for warm in (False, True):
         monkeypatch.setattr(runs, "prepare_compile", lambda names, warm=warm: None if warm else "compiling")

@@ -9,8 +9,8 @@ from pathlib import Path
 import pandas as pd
 
 from app.batch.history import VehicleMap, flagged_sensors, noise_history, vehicle_names
-from app.commands.replay import write_table
 from ingest.errors import InputError
+from workflows.replay import write_table
 
 FLEET_FILE, FLEET_CSV, HISTORY_FILE, HISTORY_CSV = "fleet.parquet", "fleet.csv", "history.parquet", "history.csv"
 #: Batch output directories of a workspace, listed by the Fleet page: ``<workspace>/batches/<name>/``.

@@ -20,19 +20,19 @@ import numpy as np
 import pandas as pd
 
 from app.batch.plan import BatchSettings, LogInput, log_output_dir
-from app.commands.calibrate import calibrate_log
-from app.commands.replay import write_table
-from app.comparison import QUANTITIES, REFERENCE_STREAMS, errors, gps_origin, quantities, reference_states, rms_table
 from app.loading import load_log
 from calib.calibration import SENSORS, Calibration
-from calib.export import read_calibration, write_calibration
+from calib.export import read_calibration
 from calib.tables import noise_table
-from estimators.api import ReplayResult, run_estimators
-from estimators.config import EstimatorConfig, config_from_calibration
+from estimators.api import ReplayResult
+from estimators.evaluation import REFERENCE_STREAMS, evaluate
 from ingest.errors import InputError
 from ingest.files import atomic_write_text
 from ingest.flightlog import FlightLog
 from ingest.sources import read_content
+from workflows.calibration import calibrate_log
+from workflows.exports import write_calibration
+from workflows.replay import replay_log, write_table
 
 #: Files of a log's output directory; :data:`ROWS_FILE` is written last and marks the log as done.
 CALIB_FILE, STATES_FILE, DIAGNOSTICS_FILE, PARAMS_FILE, ROWS_FILE = (
@@ -91,7 +91,8 @@ def process_log(item: LogInput, settings: BatchSettings, outdir: str) -> list[di
                 base.update(calibration_columns(calibration))
         rows = [base]
         if settings.replay:
-            result = _replay(log, settings, calibration)
+            result = replay_log(log, estimators=settings.estimators, calibration=calibration,
+                                heading=settings.heading, rate_hz=settings.rate_hz, allow_untrusted=settings.force)
             write_table(result.states, directory / STATES_FILE)
             write_table(result.diagnostics, directory / DIAGNOSTICS_FILE)
             rms = reference_rms(result.states, log)
@@ -150,20 +151,16 @@ def noise_column(sensor: str, axis: str | None = None) -> str:
 
 def reference_rms(states: pd.DataFrame, log: FlightLog) -> dict[str, dict[str, float]]:
     """Per estimator, the RMS error of every Table-2 quantity against each reference the log has
-    (``rms_truth_<quantity>``, ``rms_onboard_<quantity>``), as the dashboard's comparison computes it
-    (:mod:`app.comparison`, over every epoch)."""
-    origin = gps_origin(log)
+    (``rms_truth_<quantity>``, ``rms_onboard_<quantity>``), by the one evaluator
+    (:func:`estimators.evaluation.evaluate`, as the dashboard shows them)."""
     out: dict[str, dict[str, float]] = {}
-    for name, frame in states.groupby("estimator", observed=True, sort=False):
-        estimate = quantities(frame, origin)
-        row = out.setdefault(str(name), {})
-        for source in REFERENCE_STREAMS:
-            reference = reference_states(log, source, estimate["time_s"].to_numpy())
-            if reference is None:
-                continue
-            table = rms_table({str(name): errors(estimate, quantities(reference, origin))})
-            row.update({f"rms_{source}_{quantity}": float(value)
-                        for quantity, value in zip(QUANTITIES, table.iloc[0], strict=True)})
+    for source in REFERENCE_STREAMS:
+        evaluation = evaluate(states, log, reference=source)
+        if evaluation.reference is None:
+            continue
+        for name, row in evaluation.rms().iterrows():
+            out.setdefault(str(name), {}).update({f"rms_{source}_{quantity}": float(value)
+                                                  for quantity, value in row.items()})
     return out
 
 
@@ -174,14 +171,6 @@ def estimator_columns(name: str, result: ReplayResult, rms: dict[str, float]) ->
     nis = {f"nis_{c['channel']}": float(c["mean_nis"]) for c in report.details.get("consistency", [])}
     return {"estimator": name, **rms, **nis, "resets": int(report.resets), "warnings": " | ".join(report.warnings),
             "n_warnings": len(report.warnings)}
-
-
-def _replay(log: FlightLog, settings: BatchSettings, calibration: Calibration | None) -> ReplayResult:
-    """``solarnav replay`` of the log, with ``--calib`` when the batch calibrates."""
-    configs = None if calibration is None else {
-        name: config_from_calibration(calibration, estimator=name) for name in settings.estimators}
-    return run_estimators(log, estimators=settings.estimators, config=EstimatorConfig(), configs=configs,
-                          heading=settings.heading, rate_hz=settings.rate_hz, allow_untrusted=settings.force)
 
 
 def _identity(item: LogInput, sha256: str, settings_hash: str, directory: Path, outdir: str) -> dict:

@@ -19,29 +19,16 @@ import sys
 
 import numpy as np
 
-from calib.bias import local_gravity
-from calib.calibration import IMU_SENSORS, NOISE_CHOICES, Calibration, FirSettings, calibrate, with_tau
-from calib.export import write_calibration
-from calib.parameter_export import (
-    DEFAULT_PREDICT_PERIOD_S,
-    EKF3_TARGET_DT_S,
-    ardupilot_parameters,
-    export_figures,
-    px4_parameters,
-    unwritten_notes,
-    write_ardupilot_parm,
-    write_px4_params,
-)
-from calib.segments import Segment, user_segment
+from calib.calibration import IMU_SENSORS, NOISE_CHOICES, Calibration, FirSettings
+from calib.segments import user_segment
 from calib.tables import table4
-from calib.tau import DEFAULT_TAU, TAU_METHODS, TauSelection, choose_tau, user_tau
+from calib.tau import DEFAULT_TAU, TAU_METHODS, TauSelection, user_tau
 from estimators.api import DEFAULT_ESTIMATORS, parse_estimator_names
-from estimators.calibration_replay import tau_replay, with_filter_figures
-from estimators.tuning import DEFAULT_BUDGET, tune_calibration
-from estimators.warmup import prepare_compile
+from estimators.tuning import DEFAULT_BUDGET
 from ingest.errors import InputError
-from ingest.flightlog import FlightLog
 from ingest.ulog_reader import load_flight_log
+from workflows.calibration import calibrate_log
+from workflows.exports import write_calibration_files
 
 
 def add_parser(subparsers) -> None:
@@ -86,10 +73,11 @@ def run(args: argparse.Namespace) -> int:
     segment = None if args.start_s is None else user_segment(log, args.start_s, args.end_s)
     cal = calibrate_log(log, segment=segment, fir=_imu_filter(args), noise=args.noise, tau=tau,
                         tau_method=args.tau_method,
-                        tune=parse_estimator_names(args.estimators) if args.tune else (), tune_budget=args.tune_budget)
+                        tune=parse_estimator_names(args.estimators) if args.tune else (), tune_budget=args.tune_budget,
+                        on_compile=lambda message: print(f"{message} ...", file=sys.stderr, flush=True))
     try:
-        written = [write_calibration(cal, args.output)]
-        written += _write_autopilot_parameters(cal, log.meta.parameters, args)
+        written = write_calibration_files(cal, log.meta.parameters, args.output, px4_path=args.px4_params,
+                                          ardupilot_path=args.ardupilot_parm)
     except OSError as exc:
         raise InputError(f"cannot write the output ({exc.strerror})", source=exc.filename) from exc
     print(format_summary(cal))
@@ -98,74 +86,6 @@ def run(args: argparse.Namespace) -> int:
     for path in written:
         print(f"wrote {path}")
     return 0
-
-
-def calibrate_log(log: FlightLog, *, segment: Segment | None = None, fir: dict[str, FirSettings] | None = None,
-                  noise: str = "sigma", tau: TauSelection | None = DEFAULT_TAU, tau_method: str = "likelihood",
-                  tune: tuple[str, ...] = (), tune_budget: int = DEFAULT_BUDGET) -> Calibration:
-    """What ``solarnav calibrate`` computes for one log (``solarnav batch --calibrate`` runs it per log).
-
-    Parameters
-    ----------
-    log : FlightLog
-        The flight.
-    segment, fir, noise
-        As :func:`calib.calibration.calibrate`.
-    tau : TauSelection or None
-        The eq 52 penalty; None chooses it by replaying the three-stage estimator (``--tau auto``) with
-        ``tau_method``.
-    tune : tuple of str
-        Estimators whose noise is identified from the flight's innovations (``--tune``); empty for none.
-    tune_budget : int
-        Filter replays per tuned estimator.
-
-    Returns
-    -------
-    Calibration
-        With the filter figures (and the in-flight bias with GPS) and the tuning results.
-    """
-    cal = calibrate(log, segment=segment, fir=fir, noise=noise, tau=tau or DEFAULT_TAU, gravity=local_gravity(log))
-    replayed = (["three_stage"] if tau is None else []) + (["full_state_indirect"] if log.has("gps") else [])
-    message = prepare_compile(replayed + list(tune))
-    if message is not None:  # the filters' numba cache is cold (or was stale and has been dropped)
-        print(f"{message} ...", file=sys.stderr, flush=True)
-    if tau is None:
-        cal = with_tau(cal, choose_tau(tau_replay(log, cal), method=tau_method))
-    cal = with_filter_figures(log, cal)
-    if tune:
-        cal = tune_calibration(log, cal, tune, budget=tune_budget)
-    return cal
-
-
-def _write_autopilot_parameters(cal: Calibration, log_parameters: dict, args: argparse.Namespace) -> list:
-    """Write the ``--px4-params`` / ``--ardupilot-parm`` files requested; returns their paths."""
-    if not (args.px4_params or args.ardupilot_parm):
-        return []
-    figures = export_figures(cal)
-    imu_rate_hz = cal.sensors["gyroscope"].fir.fs_hz if "gyroscope" in cal.sensors else None
-    origin = f"calibrated by solarnav from {cal.source} (sha256 {cal.sha256})"
-    written = []
-    if args.px4_params:
-        predict_us = log_parameters.get("EKF2_PREDICT_US")
-        period_s = predict_us / 1e6 if predict_us else DEFAULT_PREDICT_PERIOD_S
-        header = "\n".join([f"EKF2 noise parameters {origin}", f"EKF2 prediction period {period_s * 1e3:g} ms",
-                             *unwritten_notes(figures, "px4")])
-        written.append(write_px4_params(px4_parameters(figures, period_s, imu_rate_hz), args.px4_params,
-                                        header=header))
-    if args.ardupilot_parm:
-        # An ArduPilot log's loop rate (SCHED_LOOP_RATE) gives EKF3's step, max(1 / loop rate, 12 ms); a PX4 log
-        # says nothing of it: EKF3's target step (12 ms; longer below 83 Hz loops).
-        loop_hz = log_parameters.get("SCHED_LOOP_RATE", 0.0)
-        ekf3_period_s = max(EKF3_TARGET_DT_S, 1.0 / loop_hz) if loop_hz > 0 else EKF3_TARGET_DT_S
-        period_note = (f"max(1 / SCHED_LOOP_RATE {loop_hz:g} Hz, EKF_TARGET_DT 12 ms) of the log" if loop_hz > 0
-                       else "EKF_TARGET_DT; a loop slower than 83 Hz predicts at its own period: scale the per-step "
-                            "values by sqrt(12 ms / period)")
-        header = "\n".join([f"EKF3 noise parameters {origin}",
-                            f"EKF3 prediction period {ekf3_period_s * 1e3:g} ms ({period_note})",
-                            *unwritten_notes(figures, "ardupilot")])
-        written.append(write_ardupilot_parm(ardupilot_parameters(figures, ekf3_period_s, imu_rate_hz),
-                                            args.ardupilot_parm, header=header))
-    return written
 
 
 def format_summary(cal: Calibration) -> str:

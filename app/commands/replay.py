@@ -15,30 +15,14 @@ import math
 import sys
 from pathlib import Path
 
-import numpy as np
-import pandas as pd
-import pyarrow
-import pyarrow.csv
-
-from estimators.api import (
-    DEFAULT_ESTIMATORS,
-    ESTIMATORS,
-    ReplayResult,
-    parse_estimator_names,
-    quality_warnings,
-    run_estimators,
-)
-from estimators.config import EstimatorConfig, config_from_calibration
+from estimators.api import DEFAULT_ESTIMATORS, ESTIMATORS, ReplayResult, parse_estimator_names, quality_warnings
 from estimators.consistency import turbulence_intensity_m_s
 from estimators.inputs.records import HEADING_SOURCES
 from estimators.warmup import SUN_SOLVER, compile_side_by_side, prepare_compile
 from ingest.errors import InputError
-from ingest.files import atomic_write
 from ingest.sun_log import load_sun_device, with_sun
 from ingest.ulog_reader import load_flight_log
-
-#: Output formats by file suffix.
-FORMATS = (".parquet", ".csv")
+from workflows.replay import TABLE_FORMATS, as_float32, replay_log, write_table
 
 
 def add_parser(subparsers) -> None:
@@ -67,24 +51,23 @@ def add_parser(subparsers) -> None:
 def run(args: argparse.Namespace) -> int:
     """Read the inputs, run the estimators, write the files atomically and print a summary; 0 on success."""
     names = parse_estimator_names(args.estimators)
-    outputs = [_checked_path(args.output, "--output")]
+    outputs = [checked_table_path(args.output, "--output")]
     if args.diagnostics is not None:
-        outputs.append(_checked_path(args.diagnostics, "--diagnostics"))
+        outputs.append(checked_table_path(args.diagnostics, "--diagnostics"))
     if args.device is not None and args.sun is None:
         raise InputError("--device describes the sun-device log: give --sun too")
-    config, configs = EstimatorConfig(), None
+    calibration = None
     if args.calib is not None:
         from calib.export import read_calibration  # deferred: the calibration stack is slow to import
 
         calibration = read_calibration(args.calib)
-        configs = {name: config_from_calibration(calibration, estimator=name) for name in names}
     log = load_flight_log(args.log)
     if args.sun is not None:
         device = load_sun_device(args.device) if args.device is not None else None
         log = with_sun(log, args.sun, device=device)
     announce_compile([*names, *([SUN_SOLVER] if "sun" in args.heading else [])])
-    result = run_estimators(log, estimators=names, config=config, configs=configs, heading=args.heading,
-                            rate_hz=args.rate_hz, allow_untrusted=args.force)
+    result = replay_log(log, estimators=names, calibration=calibration, heading=args.heading, rate_hz=args.rate_hz,
+                        allow_untrusted=args.force)
     narrow = as_float32 if args.float32 else (lambda frame: frame)
     write_table(narrow(result.states), outputs[0])
     if args.diagnostics is not None:
@@ -103,43 +86,15 @@ def announce_compile(estimators) -> None:
         compile_side_by_side(estimators)
 
 
-def _checked_path(path: str, option: str) -> Path:
+def checked_table_path(path: str, option: str) -> Path:
+    """``path`` as a table output of ``option``: a known suffix (:data:`workflows.replay.TABLE_FORMATS`) in an
+    existing directory, else InputError."""
     out = Path(path)
-    if out.suffix.lower() not in FORMATS:
-        raise InputError(f"must end in {' or '.join(FORMATS)}, got {path!r}", field=option)
+    if out.suffix.lower() not in TABLE_FORMATS:
+        raise InputError(f"must end in {' or '.join(TABLE_FORMATS)}, got {path!r}", field=option)
     if not out.parent.exists():
         raise InputError(f"directory {str(out.parent)!r} does not exist", field=option)
     return out
-
-
-#: Columns ``--float32`` keeps in float64: the log clock (float32 steps reach 8 ms at 1e5 s) and the geodetic
-#: angles (float32 steps of 8e-6 deg are nearly a metre).
-FLOAT64_COLUMNS = frozenset({"time_s", "lat_deg", "lon_deg"})
-
-
-def as_float32(frame: pd.DataFrame) -> pd.DataFrame:
-    """``frame`` with its float64 columns as float32, except :data:`FLOAT64_COLUMNS` (other columns shared, not
-    copied)."""
-    narrowed = {name: frame[name].astype(np.float32) for name, dtype in frame.dtypes.items()
-                if dtype == np.float64 and name not in FLOAT64_COLUMNS}
-    return frame.assign(**narrowed) if narrowed else frame
-
-
-def write_table(frame: pd.DataFrame, path: Path) -> Path:
-    """Write ``frame`` as Parquet or CSV (by suffix) atomically (:func:`ingest.files.atomic_write`).
-
-    Parquet dictionary-encodes only the categorical columns (tried on every float column, it costs time and saves
-    nothing). CSV is written by Arrow, ten times faster than pandas on long float tables: numbers in their shortest
-    round-trip form (``20`` for 20.0), strings quoted, missing values empty, booleans ``true``/``false``.
-    """
-    def write(temp: Path) -> None:
-        if path.suffix.lower() == ".parquet":
-            categorical = [name for name, dtype in frame.dtypes.items() if isinstance(dtype, pd.CategoricalDtype)]
-            frame.to_parquet(temp, index=False, use_dictionary=categorical)
-        else:
-            pyarrow.csv.write_csv(pyarrow.Table.from_pandas(frame, preserve_index=False), temp)
-
-    return atomic_write(path, write)
 
 
 def format_summary(result: ReplayResult, outputs: list[Path]) -> str:

@@ -9,10 +9,11 @@ import dataclasses
 import numpy as np
 import pandas as pd
 
-from app.commands.replay import _checked_path, write_table
+from app.commands.replay import checked_table_path
 from estimators.sun.prediction import ATTITUDE_STREAMS, sun_vector_table, usable_sun
 from ingest.sun_log import load_sun_device, with_sun
 from ingest.ulog_reader import load_flight_log
+from workflows.replay import write_table
 
 
 def add_parser(subparsers) -> None:
@@ -31,7 +32,7 @@ def add_parser(subparsers) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Solve, compare, write the table atomically and print a summary; 0 on success."""
-    output = _checked_path(args.output, "--output")
+    output = checked_table_path(args.output, "--output")
     log = load_flight_log(args.log)
     if log.meta.utc_offset_s is None and args.sun_time_offset_s is not None:
         log = dataclasses.replace(log, meta=dataclasses.replace(log.meta, utc_offset_s=args.sun_time_offset_s))

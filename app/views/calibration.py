@@ -2,7 +2,6 @@
 matrices (eq 51) with tau (eq 52), the Allan deviations, and download CALIB.json / the PX4 .params file."""
 
 import hashlib
-import json
 
 import numpy as np
 import pandas as pd
@@ -10,10 +9,10 @@ import streamlit as st
 
 from app import adapters, figures, session, tables, time_range
 from calib.calibration import SENSORS
-from calib.export import calibration_to_dict
 from calib.fir import frequency_response
 from calib.tables import noise_table, r_tables, table4
 from calib.tau import TAU_METHODS
+from workflows.exports import calibration_text
 
 TAU_CHOICES = (0.1, 0.2, 0.5, 1.0, 2.0, 5.0, 10.0, 20.0, 50.0, 100.0)
 TAU_MODE_LABELS = {"manual": "by hand", "likelihood": "auto: likelihood", "nis": "auto: mean NIS = 1"}
@@ -172,7 +171,7 @@ st.caption("Per estimator, the noise figures that maximise the likelihood of its
            "the calibrated ones (`solarnav calibrate --tune`; docs/calibration.md, 'Noise identification'). "
            "Saved calibrations carry them; runs with such a calibration use each estimator's own figures.")
 if st.toggle("Identify noise (about a minute for 15 minutes of flight)", key="calib_tune"):
-    digest = hashlib.sha256(json.dumps(calibration_to_dict(current), sort_keys=True).encode()).hexdigest()
+    digest = hashlib.sha256(calibration_text(current).encode()).hexdigest()
     current = adapters.tuned_calibration(root, sha256, current, digest)
     st.dataframe(tables.tuning_table(current), hide_index=True, key="calib_tuning_table", width="stretch")
     st.dataframe(tables.verdict_style(tables.tuning_nis_table(current)), hide_index=True, key="calib_tuning_nis",

@@ -160,8 +160,9 @@ if result.reference is None:
     st.warning("The log has neither ground truth nor an onboard estimate: errors cannot be computed.")
 else:
     st.caption(f"Against the {'ground truth' if result.reference == 'truth' else 'onboard estimate (no truth)'};"
-               " position = horizontal distance, wind = horizontal vector difference, course where ground speed "
-               f">= {comparison.MIN_COURSE_SPEED_M_S:g} m/s.")
+               " position = horizontal distance, wind = horizontal vector difference; airspeed, course and wind in "
+               f"flight only (reference ground speed > {comparison.MIN_COURSE_SPEED_M_S:g} m/s). "
+               f"{comparison.window_caption(result, clock.start_s)} (docs/evaluation.md).")
     if not multi:
         st.table(adapters.rms_table(root, sha256, run_id).style.format("{:.2f}", na_rep="–"))
     else:

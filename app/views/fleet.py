@@ -10,8 +10,9 @@ from app import session
 from app.batch.figures import parameter_differences, rms_distribution_figure, trend_figure
 from app.batch.summary import BATCHES_DIR, FLEET_FILE, read_summary
 from app.batch.task import OK, TAU_COLUMN, noise_column
-from app.comparison import QUANTITIES, REFERENCE_STREAMS
+from app.comparison import QUANTITIES
 from calib.calibration import SENSORS
+from estimators.evaluation import REFERENCE_STREAMS
 
 #: Widget keys.
 DIR_KEY, VEHICLES_KEY, STATUS_KEY, FIGURE_KEY, RMS_KEY, COMPARE_KEY, OPEN_KEY = (

@@ -8,7 +8,7 @@ import pandas as pd
 import streamlit as st
 
 from app import adapters, figures, session, sun_compare
-from app.comparison import gps_origin
+from estimators.evaluation import position_origin
 from estimators.warmup import COMPILE_MESSAGE, SUN_SOLVER, cache_state
 from ingest import SunDevice
 
@@ -73,7 +73,7 @@ if not solved.all():
 
 st.subheader("Solved vs predicted")
 sources = [source for source in ("truth", "onboard") if log.has(f"{source}_attitude")]
-if gps_origin(log) is None or log.meta.utc_offset_s is None:
+if position_origin(log) is None or log.meta.utc_offset_s is None:
     st.info("The prediction needs a GPS position and GPS time (for the ephemeris); this log lacks them.")
 elif not sources:
     st.info("The prediction needs an attitude (ground truth or the autopilot's estimate); this log has neither.")

@@ -1,0 +1,77 @@
+"""A calibration's files: CALIB.json and the noise parameters of PX4 EKF2 (QGroundControl ``.params``) and
+ArduPilot EKF3 (``.parm``), each with a header naming the flight, the prediction period and the figures not
+written. One writer for the CLI, the Calibration page and the batch."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+from calib.calibration import Calibration
+from calib.export import calibration_text, write_calibration
+from calib.parameter_export import (
+    DEFAULT_PREDICT_PERIOD_S,
+    EKF3_TARGET_DT_S,
+    ardupilot_parameters,
+    ardupilot_parm_text,
+    export_figures,
+    px4_parameters,
+    px4_params_text,
+    unwritten_notes,
+)
+from ingest.files import atomic_write_text
+
+__all__ = ["ardupilot_text", "calibration_text", "px4_text", "write_calibration", "write_calibration_files"]
+
+
+def _origin(cal: Calibration) -> str:
+    return f"calibrated by solarnav from {cal.source} (sha256 {cal.sha256})"
+
+
+def _imu_rate_hz(cal: Calibration) -> float | None:
+    return cal.sensors["gyroscope"].fir.fs_hz if "gyroscope" in cal.sensors else None
+
+
+def px4_text(cal: Calibration, log_parameters: dict) -> str:
+    """EKF2 noise parameters of ``cal`` as a QGroundControl ``.params`` text; the prediction period is the log's
+    ``EKF2_PREDICT_US`` (else PX4's default 10 ms)."""
+    figures = export_figures(cal)
+    predict_us = log_parameters.get("EKF2_PREDICT_US")
+    period_s = predict_us / 1e6 if predict_us else DEFAULT_PREDICT_PERIOD_S
+    header = "\n".join([f"EKF2 noise parameters {_origin(cal)}", f"EKF2 prediction period {period_s * 1e3:g} ms",
+                        *unwritten_notes(figures, "px4")])
+    return px4_params_text(px4_parameters(figures, period_s, _imu_rate_hz(cal)), header=header)
+
+
+def ardupilot_text(cal: Calibration, log_parameters: dict) -> str:
+    """EKF3 noise parameters of ``cal`` as an ArduPilot ``.parm`` text. An ArduPilot log's loop rate
+    (``SCHED_LOOP_RATE``) gives EKF3's step, max(1 / loop rate, 12 ms); a PX4 log says nothing of it: EKF3's target
+    step (12 ms; longer below 83 Hz loops, said in the header)."""
+    figures = export_figures(cal)
+    loop_hz = log_parameters.get("SCHED_LOOP_RATE", 0.0)
+    period_s = max(EKF3_TARGET_DT_S, 1.0 / loop_hz) if loop_hz > 0 else EKF3_TARGET_DT_S
+    period_note = (f"max(1 / SCHED_LOOP_RATE {loop_hz:g} Hz, EKF_TARGET_DT 12 ms) of the log" if loop_hz > 0
+                   else "EKF_TARGET_DT; a loop slower than 83 Hz predicts at its own period: scale the per-step "
+                        "values by sqrt(12 ms / period)")
+    header = "\n".join([f"EKF3 noise parameters {_origin(cal)}",
+                        f"EKF3 prediction period {period_s * 1e3:g} ms ({period_note})",
+                        *unwritten_notes(figures, "ardupilot")])
+    return ardupilot_parm_text(ardupilot_parameters(figures, period_s, _imu_rate_hz(cal)), header=header)
+
+
+def write_calibration_files(cal: Calibration, log_parameters: dict, calib_path: str | os.PathLike | None = None, *,
+                            px4_path: str | os.PathLike | None = None,
+                            ardupilot_path: str | os.PathLike | None = None) -> list[Path]:
+    """Write CALIB.json and the requested autopilot parameter files, each atomically; returns the paths written.
+
+    Raises
+    ------
+    OSError
+        A file cannot be written (those written before it stay complete).
+    """
+    written = [] if calib_path is None else [write_calibration(cal, calib_path)]
+    if px4_path is not None:
+        written.append(atomic_write_text(px4_path, px4_text(cal, log_parameters)))
+    if ardupilot_path is not None:
+        written.append(atomic_write_text(ardupilot_path, ardupilot_text(cal, log_parameters)))
+    return written
