@@ -45,7 +45,7 @@ from estimators.calibration_replay import tau_replay, with_filter_figures
 from estimators.environment import geodetic_to_ned
 from estimators.sun.prediction import sun_vector_table
 from estimators.tuning import tune_calibration
-from ingest import FlightLog
+from ingest.flightlog import FlightLog
 from ingest.quality import assess_input_quality
 
 #: Bytes per MB in Streamlit's ``server.maxUploadSize``.

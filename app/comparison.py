@@ -16,7 +16,7 @@ import pandas as pd
 from app.figures import TimeBase
 from calib.figures import chi2_quantile, mean_nis_band
 from estimators.environment import geodetic_to_ned
-from ingest import FlightLog
+from ingest.flightlog import FlightLog
 from ingest.frames import wrap_angle_deg
 
 #: Compared quantities in the order and with the labels of the paper's Table 2: column -> (label, unit).

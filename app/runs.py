@@ -20,7 +20,7 @@ from calib.calibration import Calibration
 from estimators.api import DEFAULT_ESTIMATORS, run_estimators
 from estimators.config import config_from_calibration
 from estimators.warmup import COMPILE_MESSAGE, SUN_SOLVER, cache_state, prepare_compile
-from ingest import FlightLog
+from ingest.flightlog import FlightLog
 
 #: ``noise`` setting of a run with the filters' built-in noise (datasheet values).
 DEFAULT_NOISE = "default"

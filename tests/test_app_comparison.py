@@ -7,8 +7,8 @@ import pandas as pd
 import pytest
 
 from app import comparison, sun_compare
-from ingest import SunDevice
 from ingest.flightlog import FlightLog
+from ingest.sun_device import SunDevice
 from tests.app_logs import truth_only_log
 
 

@@ -9,6 +9,7 @@ import sys
 
 import pytest
 
+from ingest import log_formats
 from scripts import architecture
 from tests.conftest import REPO_DIR
 
@@ -129,6 +130,27 @@ def test_filters_do_not_import_each_other_and_shared_layers_stay_below_them():
                         for allowed in SHARED_LAYER_IMPORTS[layer]):
                     violations.append(f"{module} ({layer}) imports {target}")
     assert not violations, "\n".join(sorted(violations))
+
+
+def _reachable(graph, start):
+    seen, todo = set(), [start]
+    while todo:
+        for target in graph.get(todo.pop(), ()):
+            if target not in seen:
+                seen.add(target)
+                todo.append(target)
+    return seen
+
+
+def test_flight_log_readers_reach_neither_each_other_nor_the_dispatcher():
+    """The format dispatch lives in ingest.log_formats, outside every reader: no reader imports another reader or
+    the dispatcher, directly, deferred or through a package ``__init__``."""
+    graph = architecture.import_graph(architecture.module_files())
+    readers = {log_format.read.__module__ for log_format in log_formats.FORMATS}
+    assert len(readers) == len(log_formats.FORMATS)
+    violations = {reader: sorted(_reachable(graph, reader) & (readers - {reader} | {log_formats.__name__}))
+                  for reader in sorted(readers)}
+    assert not any(violations.values()), violations
 
 
 def test_no_estimators_module_over_600_lines():

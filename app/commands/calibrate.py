@@ -41,7 +41,7 @@ from estimators.tuning import DEFAULT_BUDGET, tune_calibration
 from estimators.warmup import prepare_compile
 from ingest.errors import InputError
 from ingest.flightlog import FlightLog
-from ingest.ulog_reader import load_flight_log
+from ingest.log_formats import load_flight_log
 
 
 def add_parser(subparsers) -> None:

@@ -34,8 +34,8 @@ from estimators.inputs.records import HEADING_SOURCES
 from estimators.warmup import SUN_SOLVER, compile_side_by_side, prepare_compile
 from ingest.errors import InputError
 from ingest.files import atomic_write
+from ingest.log_formats import load_flight_log
 from ingest.sun_log import load_sun_device, with_sun
-from ingest.ulog_reader import load_flight_log
 
 #: Output formats by file suffix.
 FORMATS = (".parquet", ".csv")
