@@ -1,8 +1,8 @@
 """The flight-log formats solarnav reads, and :func:`load_flight_log`, which picks one by the file's content.
 
-Each :class:`LogFormat` pairs a recogniser (a test on the first bytes) with its reader; :data:`FORMATS` lists
-them, so reading another format is one more entry there and a reader module that imports neither this module nor
-another reader (docs/ingest.md, 'Formats').
+Each :class:`LogFormat` pairs a recogniser (a test on the content: for these its first bytes) with its reader;
+:data:`FORMATS` lists them, so reading another format is one more entry there and a reader module that imports
+neither this module nor another reader (docs/ingest.md, 'Formats').
 """
 
 from __future__ import annotations
