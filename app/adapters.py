@@ -38,7 +38,7 @@ from calib.tau import TauSelection, user_tau
 from estimators.environment import geodetic_to_ned
 from estimators.evaluation import Evaluation, position_origin
 from estimators.sun.prediction import sun_vector_table
-from ingest import FlightLog
+from ingest.flightlog import FlightLog
 from ingest.quality import assess_input_quality
 from workflows.calibration import choose_tau_by_replay, identify_noise, measure_noise
 from workflows.exports import calibration_text, px4_text

@@ -16,7 +16,7 @@ from app.figures import TimeBase
 from calib.figures import chi2_quantile, mean_nis_band
 from estimators.evaluation import MIN_GROUND_SPEED_M_S, Evaluation, evaluate
 from estimators.evaluation import QUANTITIES as EVALUATED
-from ingest import FlightLog
+from ingest.flightlog import FlightLog
 
 #: Compared quantities in the order and with the labels of the paper's Table 2: error column -> (label, unit).
 QUANTITIES = dict(zip(EVALUATED, [

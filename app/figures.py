@@ -19,7 +19,7 @@ import plotly.graph_objects as go
 from plotly.subplots import make_subplots
 from tsdownsample import NaNMinMaxLTTBDownsampler
 
-from ingest import FlightLog
+from ingest.flightlog import FlightLog
 
 #: Largest number of points drawn per trace.
 MAX_POINTS = 2000

@@ -6,8 +6,11 @@ No Streamlit here: the cached adapter (:func:`app.adapters.parsed_log`) and the 
 from __future__ import annotations
 
 from app.workspace import Workspace
-from ingest import FlightLog, InputError, load_flight_log, load_sun_device, with_sun
+from ingest.errors import InputError
+from ingest.flightlog import FlightLog
+from ingest.log_formats import load_flight_log
 from ingest.sources import Source
+from ingest.sun_log import load_sun_device, with_sun
 
 
 def load_log(ulog: Source, sun_csv: Source | None = None, device_json: Source | None = None, *, name: str,

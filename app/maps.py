@@ -15,7 +15,7 @@ import pandas as pd
 import plotly.graph_objects as go
 
 from app.figures import MAX_POINTS, PHASE_COLORS, SOURCE_COLORS, downsample_indices
-from ingest import FlightLog
+from ingest.flightlog import FlightLog
 
 #: Open tile style (no API key).
 MAP_STYLE = "open-street-map"

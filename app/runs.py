@@ -19,7 +19,7 @@ from app.workspace import Workspace
 from calib.calibration import Calibration
 from estimators.api import DEFAULT_ESTIMATORS
 from estimators.warmup import COMPILE_MESSAGE, SUN_SOLVER, cache_state, prepare_compile
-from ingest import FlightLog
+from ingest.flightlog import FlightLog
 from workflows.replay import replay_log
 
 #: ``noise`` setting of a run with the filters' built-in noise (datasheet values).

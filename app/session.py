@@ -21,7 +21,8 @@ import streamlit as st
 
 from app import adapters, figures, time_range
 from app.workspace import LogEntry, Stored, Workspace
-from ingest import FlightLog, InputError
+from ingest.errors import InputError
+from ingest.flightlog import FlightLog
 
 WORKSPACE_ENV = "SOLARNAV_WORKSPACE"
 DEFAULT_WORKSPACE = "workspace"

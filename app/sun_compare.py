@@ -11,8 +11,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from ingest import SunDevice
-from ingest.sun_device import N_CELLS
+from ingest.sun_device import N_CELLS, SunDevice
 
 #: Cell state codes of :func:`cell_states`.
 CELL_DARK, CELL_LIT, CELL_FAULTY = 0, 1, 2

@@ -19,7 +19,7 @@ from calib.figures import ChannelConsistency
 from calib.fir import default_cutoff_hz
 from calib.tau import COLOURED_LAG1, TauSelection
 from estimators.consistency import MIN_UPDATES, NIS_WARNING_RANGE
-from ingest import FlightLog, LogMetadata
+from ingest.flightlog import FlightLog, LogMetadata
 
 #: MAVLink MAV_TYPE values a PX4 log is likely to carry.
 MAV_TYPE_NAMES = {

@@ -42,7 +42,7 @@ from estimators.direct import measurements, model
 from estimators.direct import run as direct_run
 from estimators.evaluation import PAPER_TABLE_2, QUANTITIES, config_for_simulation, rms_errors
 from estimators.inputs import build, records
-from ingest.ulog_reader import load_flight_log
+from ingest.log_formats import load_flight_log
 from sim.px4_export import write_outputs
 from sim.scenarios import SCENARIOS
 from sim.simulate import simulate
@@ -78,7 +78,7 @@ _COMPILE_SNIPPET = """
 import sys, time
 start = time.perf_counter()
 from estimators.api import run_estimators
-from ingest.ulog_reader import load_flight_log
+from ingest.log_formats import load_flight_log
 from sim.px4_export import write_outputs
 from sim.scenarios import SCENARIOS
 from sim.simulate import simulate

@@ -31,9 +31,9 @@ from pathlib import Path
 import numpy as np
 from pyulog import ULog
 
+from ingest.log_formats import load_flight_log
 from ingest.px4_topics import ALL_TOPICS
 from ingest.ulog_fast import read_ulog
-from ingest.ulog_reader import load_flight_log
 from sim.px4_export import write_outputs
 from sim.scenarios import SCENARIOS
 from sim.simulate import simulate

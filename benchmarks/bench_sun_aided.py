@@ -27,8 +27,8 @@ import pandas as pd
 from estimators.api import run_estimators
 from estimators.config import EstimatorConfig
 from estimators.evaluation import config_for_simulation, rms_errors
-from ingest import load_sun_device, with_sun
-from ingest.ulog_reader import load_flight_log
+from ingest.log_formats import load_flight_log
+from ingest.sun_log import load_sun_device, with_sun
 from sim.px4_export import side_file
 from sim.scenarios import SCENARIOS
 from sim.simulate import simulate

@@ -30,7 +30,7 @@ from estimators.calibration_replay import tau_replay, with_filter_figures
 from estimators.config import config_from_calibration
 from estimators.evaluation import rms_errors
 from estimators.tuning import tune_calibration
-from ingest.ulog_reader import load_flight_log
+from ingest.log_formats import load_flight_log
 from sim.kinematics import Site
 from sim.px4_export import write_outputs
 from sim.scenarios import SCENARIOS, SensorSpec

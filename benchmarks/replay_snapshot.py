@@ -20,8 +20,8 @@ import pandas as pd
 from estimators.api import run_estimators
 from estimators.evaluation import evaluate
 from ingest.errors import InputError
+from ingest.log_formats import load_flight_log
 from ingest.sun_log import load_sun_device, with_sun
-from ingest.ulog_reader import load_flight_log
 
 ROOT = Path(__file__).resolve().parents[1]
 REAL_LOGS = ROOT.parent / "shared" / "real_logs"

@@ -1,10 +1,6 @@
-"""Readers that turn PX4 ULog files and sun-device CSV logs into one canonical :class:`FlightLog`."""
+"""Readers that turn PX4 ULog and ArduPilot DataFlash files and sun-device CSV logs into one canonical
+:class:`~ingest.flightlog.FlightLog`; :func:`ingest.log_formats.load_flight_log` reads a flight log of any format.
 
-from ingest.errors import FileTooLargeError, InputError
-from ingest.flightlog import STREAM_COLUMNS, FlightLog, LogMetadata, StreamInfo
-from ingest.sun_device import SunDevice
-from ingest.sun_log import attach_sun, load_sun_device, load_sun_log, with_sun
-from ingest.ulog_reader import load_flight_log
-
-__all__ = ["STREAM_COLUMNS", "FileTooLargeError", "FlightLog", "InputError", "LogMetadata", "StreamInfo",
-           "SunDevice", "attach_sun", "load_flight_log", "load_sun_device", "load_sun_log", "with_sun"]
+Import from the module that defines a name: this file imports nothing, so importing one ``ingest`` module runs no
+other (and no reader imports another through it).
+"""

@@ -1,8 +1,9 @@
 """ArduPilot DataFlash ``.bin`` -> canonical :class:`~ingest.flightlog.FlightLog` (docs/ingest.md, 'DataFlash').
 
-:func:`ingest.ulog_reader.load_flight_log` hands a file that starts with the DataFlash record header
-(``0xA3 0x95``) to :func:`flightlog_from_dataflash`. The records are found in one pass and the wanted message
-types decoded with numpy (:mod:`ingest.dataflash_format`); no Python object is made per message.
+:func:`ingest.log_formats.load_flight_log` hands a file that :func:`is_dataflash` recognises (it starts with the
+DataFlash record header ``0xA3 0x95``) to :func:`flightlog_from_dataflash`. The records are found in one pass
+and the wanted message types decoded with numpy (:mod:`ingest.dataflash_format`); no Python object is made per
+message.
 
 Mapping (ArduPilot ``libraries/AP_Logger/LogStructure.h`` units; ArduPilot's body frame is FRD and its earth
 frame NED, as the canonical ones):

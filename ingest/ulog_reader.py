@@ -1,12 +1,13 @@
 """PX4 ULog -> canonical :class:`~ingest.flightlog.FlightLog`.
 
-:func:`load_flight_log` takes a path, bytes or a binary file object (a Streamlit upload), parses only the
-topics listed in :mod:`ingest.px4_topics` with pyulog under the guards of :mod:`ingest.ulog_guard` (bounded time
-and memory on any file, docs/robustness.md, 'ULog reader guard'), the data messages gathered by
-:mod:`ingest.ulog_fast` (docs/robustness.md, 'Fast data section'), and hands the result to
-:func:`flightlog_from_ulog`, which maps PX4 names and units to the canonical ones and cleans the time axis.
-Everything it works around is written to ``FlightLog.meta.warnings``; damage costs only the damaged part (a
-parameter, a topic, some rows) where it can be isolated.
+:func:`flightlog_from_ulog_content` takes the content of a file that :func:`is_ulog` recognises (the dispatcher
+:func:`ingest.log_formats.load_flight_log` hands it over), parses only the topics listed in
+:mod:`ingest.px4_topics` with pyulog under the guards of :mod:`ingest.ulog_guard` (bounded time and memory on any
+file, docs/robustness.md, 'ULog reader guard'), the data messages gathered by :mod:`ingest.ulog_fast`
+(docs/robustness.md, 'Fast data section'), and hands the result to :func:`flightlog_from_ulog`, which maps PX4
+names and units to the canonical ones and cleans the time axis. Everything it works around is written to
+``FlightLog.meta.warnings``; damage costs only the damaged part (a parameter, a topic, some rows) where it can be
+isolated.
 
 Time axis of every topic: PX4 ``timestamp`` [us] cast to int64 before any arithmetic; rows with timestamp 0 or
 timed before the log's start are dropped, so are corrupt timestamps far from the rest of the topic or from the
@@ -59,7 +60,6 @@ from ingest.px4_topics import (
     US_TO_S,
     TopicSpec,
 )
-from ingest.sources import Source, read_content
 from ingest.ulog_fast import compile_kernels as compile_fast_kernels
 from ingest.ulog_fast import read_ulog
 
@@ -69,7 +69,9 @@ MIN_POSITION_FIX_TYPE = 2
 #: below, which PX4 also enforces).
 DEFAULT_QNH_HPA = 1013.25
 QNH_RANGE_HPA = (500.0, 1500.0)
-#: ULog file header: magic bytes and the 8-byte start timestamp.
+#: The first bytes of every ULog file ("ULog" 0x01 0x12 0x35), before its version byte and start timestamp.
+ULOG_MAGIC = ULog.HEADER_BYTES
+#: ULog file header: magic bytes, version and the 8-byte start timestamp.
 ULOG_HEADER_BYTES = 16
 #: A topic's rows split wherever sorted times leave a gap above max(OUTLIER_GAP_MIN_S, OUTLIER_GAP_FACTOR x the
 #: median spacing); a group of at most OUTLIER_RUN_ROWS rows (and at most a tenth of the topic) cut off so is a
@@ -85,46 +87,40 @@ TIME_BASE_SPLIT_S = 3600.0
 MAX_SAMPLE_LAG_S = 60.0
 
 
-def load_flight_log(path_or_bytes: Source, *, max_bytes: int | None = None, name: str | None = None) -> FlightLog:
-    """Read a PX4 ULog file (or an ArduPilot DataFlash ``.bin``, recognised by its content) into a
-    :class:`FlightLog`.
+def is_ulog(content: bytes) -> bool:
+    """True when ``content`` starts like a ULog file (:data:`ULOG_MAGIC`)."""
+    return content.startswith(ULOG_MAGIC)
+
+
+def flightlog_from_ulog_content(content: bytes, *, source: str) -> FlightLog:
+    """Read the content of a PX4 ULog ``.ulg`` file into a :class:`FlightLog`.
 
     Parameters
     ----------
-    path_or_bytes : path, bytes or binary file object
-        The ``.ulg`` / ``.bin`` file or its content (a Streamlit upload is a binary file object).
-    max_bytes : int, optional
-        Refuse files larger than this [bytes] with :class:`~ingest.errors.FileTooLargeError`.
-    name : str, optional
-        Name shown in messages and stored as ``meta.source``; default the file's base name (``"<upload>"`` for
-        nameless bytes).
+    content : bytes
+        The whole file.
+    source : str
+        File name for messages and ``meta.source``.
 
     Returns
     -------
     FlightLog
-        Canonical streams (SI, NED, body FRD, ``time_s`` index) and metadata with the file's SHA-256. A
+        Canonical streams (SI, NED, body FRD, ``time_s`` index) and metadata with the SHA-256 of ``content``. A
         truncated or partly corrupt file gives what is readable, with a warning.
 
     Raises
     ------
     InputError
-        The file cannot be read, is empty, is neither a ULog nor a DataFlash log, is damaged beyond what the
-        reader can skip (docs/robustness.md, 'ULog reader guard'), or has no usable IMU (``sensor_combined``) data.
-    FileTooLargeError
-        The file is larger than ``max_bytes``.
+        The content is not a ULog, is damaged beyond what the reader can skip (docs/robustness.md, 'ULog reader
+        guard'), or has no usable IMU (``sensor_combined``) data.
     """
-    from ingest.dataflash_reader import flightlog_from_dataflash, is_dataflash  # the one ArduPilot entry point
-
-    content, name = read_content(path_or_bytes, name=name, max_bytes=max_bytes)
-    if is_dataflash(content):  # by content, not by file name (docs/ingest.md, 'DataFlash')
-        return flightlog_from_dataflash(content, source=name)
-    ulog, notes = read_ulog(content, name, ALL_TOPICS)
+    ulog, notes = read_ulog(content, source, ALL_TOPICS)
     if not ulog.file_corruption:
         end = _message_walk_end(np.frombuffer(content, dtype=np.uint8), ULOG_HEADER_BYTES)
         if end != len(content):
             notes.append(f"the file is truncated: its last message is cut off at byte {len(content)}; "
                          "the complete messages before it were read")
-    return flightlog_from_ulog(ulog, source=name, sha256=hashlib.sha256(content).hexdigest(), notes=notes)
+    return flightlog_from_ulog(ulog, source=source, sha256=hashlib.sha256(content).hexdigest(), notes=notes)
 
 
 def flightlog_from_ulog(ulog: ULog, *, source: str, sha256: str = "", notes: Sequence[str] = ()) -> FlightLog:

@@ -7,7 +7,7 @@ The readers' contract: each returns a result or raises :class:`ingest.errors.Inp
 a hang or a crash (a signal) is a bug. Every case is reproducible from ``(target, case_seed)`` and the seed list:
 :func:`make_case` draws the seed file, the operators and their parameters from ``numpy.random.default_rng``.
 
-Targets: ``"ulog"`` (:func:`ingest.ulog_reader.load_flight_log`), ``"sun_csv"``
+Targets: ``"ulog"`` (:func:`ingest.log_formats.load_flight_log`), ``"sun_csv"``
 (:func:`ingest.sun_log.load_sun_log`) and ``"device_json"`` (:func:`ingest.sun_log.load_sun_device`).
 
 ULog layout used by the operators: a 16-byte file header, then messages, each a 3-byte header (uint16 payload
@@ -1232,7 +1232,7 @@ def run_reader(target: str, data: bytes) -> object:
             raise InputError("selftest")
         return data
     if target == "ulog":
-        from ingest.ulog_reader import load_flight_log
+        from ingest.log_formats import load_flight_log
 
         return load_flight_log(data, name="fuzz.ulg")
     if target == "sun_csv":
@@ -1357,7 +1357,7 @@ def _stack_signature(trace_text: str) -> tuple[str, str]:
 
 
 #: Imported once in the fork server, so that a replacement worker starts in milliseconds, not seconds.
-WORKER_PRELOAD = ["fuzz_mutations", "numpy", "pandas", "pyulog", "ingest.ulog_reader", "ingest.sun_log"]
+WORKER_PRELOAD = ["fuzz_mutations", "numpy", "pandas", "pyulog", "ingest.log_formats", "ingest.sun_log"]
 
 
 def _worker_context(code_root: str | os.PathLike | None):

@@ -8,8 +8,8 @@ import pytest
 
 from app import comparison, sun_compare
 from estimators import evaluation
-from ingest import SunDevice
 from ingest.flightlog import FlightLog
+from ingest.sun_device import SunDevice
 from tests.app_logs import truth_only_log
 
 

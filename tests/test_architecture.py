@@ -10,6 +10,7 @@ import sys
 
 import pytest
 
+from ingest import log_formats
 from scripts import architecture
 from tests.conftest import REPO_DIR
 
@@ -80,15 +81,64 @@ MAX_MODULE_LINES = 600
 
 
 def test_no_import_cycles_anywhere():
-    """Every import counts, deferred ones inside functions too (scripts/architecture.py prints the same)."""
+    """Every import counts, deferred ones inside functions too, and an import of ``pkg.mod`` is one of ``pkg``
+    (its ``__init__`` runs first); scripts/architecture.py prints the same."""
     found = architecture.cycles(architecture.import_graph(architecture.module_files()))
     assert not found, "\n".join(" <-> ".join(component) for component in found)
+
+
+def _write_tree(root, modules):
+    for name, text in modules.items():
+        path = root.joinpath(*name.split(".")).with_suffix(".py")
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(text)
+
+
+def test_a_package_init_that_imports_a_module_importing_the_package_is_a_cycle(tmp_path):
+    """``ingest/__init__`` -> ``ingest.reader`` (deferred) -> ``ingest.sub.errors``, which runs ``ingest/__init__``
+    and ``ingest/sub/__init__`` first; an ``__init__`` importing a module that imports nothing is no cycle."""
+    _write_tree(tmp_path, {
+        "ingest.__init__": "from ingest.leaf import VALUE\n",
+        "ingest.leaf": "VALUE = 1\n",
+        "ingest.reader": "def read():\n    from ingest.sub.errors import Error\n    return Error\n",
+        "ingest.sub.__init__": "",
+        "ingest.sub.errors": "class Error(Exception):\n    pass\n",
+        "calib.__init__": "",
+        "calib.use": "from ingest.sub import errors\n",
+    })
+    graph = architecture.import_graph(architecture.module_files(tmp_path))
+    assert graph["calib.use"] == {"ingest", "ingest.sub", "ingest.sub.errors"}
+    assert graph["ingest.reader"] == {"ingest", "ingest.sub", "ingest.sub.errors"}
+    assert graph["ingest"] == {"ingest.leaf"}
+    assert architecture.cycles(graph) == []
+    _write_tree(tmp_path, {"ingest.__init__": "from ingest.reader import read\n"})
+    assert architecture.cycles(architecture.import_graph(architecture.module_files(tmp_path))) == [
+        ["ingest", "ingest.reader"]]
+
+
+def test_long_functions_are_listed_per_package(tmp_path):
+    body = "    x = 0\n" * (architecture.MAX_FUNCTION_LINES - 2)
+    _write_tree(tmp_path, {
+        "ingest.__init__": "",
+        "ingest.long": (f"def at_the_limit():\n{body}    return x\n\n\n"
+                        f"class Reader:\n    def over(self):\n    {body.replace(chr(10), chr(10) + '    ')}"
+                        f"    y = 1\n        return y\n"),
+    })
+    assert architecture.long_functions(architecture.module_files(tmp_path)) == {
+        "ingest": [("ingest.long:Reader.over", architecture.MAX_FUNCTION_LINES + 1)]}
+
+
+def test_no_ingest_function_over_100_lines():
+    assert "ingest" not in architecture.long_functions(architecture.module_files())
 
 
 def test_filters_do_not_import_each_other_and_shared_layers_stay_below_them():
     graph = architecture.import_graph(architecture.module_files())
     violations = []
-    for module, imported in graph.items():
+    for module, with_packages in graph.items():
+        # a package above an imported module is in the graph because its __init__ runs: not an import of its own
+        imported = {target for target in with_packages
+                    if not any(other.startswith(target + ".") for other in with_packages)}
         own = next((p for p in FILTER_PACKAGES if module == p or module.startswith(p + ".")), None)
         for target in imported:
             other = next((p for p in FILTER_PACKAGES if target == p or target.startswith(p + ".")), None)
@@ -102,6 +152,27 @@ def test_filters_do_not_import_each_other_and_shared_layers_stay_below_them():
                         for allowed in SHARED_LAYER_IMPORTS[layer]):
                     violations.append(f"{module} ({layer}) imports {target}")
     assert not violations, "\n".join(sorted(violations))
+
+
+def _reachable(graph, start):
+    seen, todo = set(), [start]
+    while todo:
+        for target in graph.get(todo.pop(), ()):
+            if target not in seen:
+                seen.add(target)
+                todo.append(target)
+    return seen
+
+
+def test_flight_log_readers_reach_neither_each_other_nor_the_dispatcher():
+    """The format dispatch lives in ingest.log_formats, outside every reader: no reader imports another reader or
+    the dispatcher, directly, deferred or through a package ``__init__``."""
+    graph = architecture.import_graph(architecture.module_files())
+    readers = {log_format.read.__module__ for log_format in log_formats.FORMATS}
+    assert len(readers) == len(log_formats.FORMATS)
+    violations = {reader: sorted(_reachable(graph, reader) & (readers - {reader} | {log_formats.__name__}))
+                  for reader in sorted(readers)}
+    assert not any(violations.values()), violations
 
 
 def test_no_estimators_module_over_600_lines():

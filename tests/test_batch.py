@@ -21,7 +21,8 @@ from app.cli import main
 from app.comparison import QUANTITIES, compare, rms_table
 from calib.export import read_calibration
 from estimators.consistency import channel_consistency
-from ingest import InputError, load_flight_log
+from ingest.errors import InputError
+from ingest.log_formats import load_flight_log
 from tests.batch_logs import DOUBLED_FROM, N_FLIGHTS, VEHICLE, flight_name, write_fleet
 
 ESTIMATORS = ("three_stage", "full_state_direct", "full_state_indirect")

@@ -14,7 +14,7 @@ import pytest
 from calib.calibration import calibrate
 from calib.export import calibration_from_dict, calibration_to_dict
 from calib.parameter_export import export_figures, px4_parameters
-from ingest.ulog_reader import load_flight_log
+from ingest.log_formats import load_flight_log
 
 GYRO_BAND_RAD_S = (1e-4, 5e-2)
 ACCEL_BAND_M_S2 = (1e-3, 0.5)

@@ -29,7 +29,7 @@ from estimators.config import EstimatorConfig, config_from_figures
 from estimators.environment import ISA_LAPSE_K_M, air_density_kg_m3, isa_altitude_m, local_gravity_m_s2
 from estimators.tuning import tune_estimator
 from ingest.frames import quat_to_matrix
-from ingest.ulog_reader import load_flight_log
+from ingest.log_formats import load_flight_log
 
 SAMPLE_LOGS = Path(__file__).resolve().parents[1] / "sample_logs"
 IMU_RATE_HZ = 250.0

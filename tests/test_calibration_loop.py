@@ -43,7 +43,7 @@ from estimators.evaluation import SIM_AIR_DENSITY_KG_M3
 from estimators.inputs.build import build_replay_inputs
 from estimators.inputs.records import MAG
 from estimators.tuning import NIS_START_TOLERANCE, tune_estimator
-from ingest.ulog_reader import load_flight_log
+from ingest.log_formats import load_flight_log
 from sim.scenarios import SCENARIOS
 from sim.simulate import simulate
 

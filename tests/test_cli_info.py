@@ -72,7 +72,8 @@ def test_sun_time_offset_for_a_log_without_gps(real_logs_dir, tmp_path, capsys):
 
 @pytest.mark.parametrize(("make_argv", "message"), [
     (lambda logs, tmp: ["info", str(tmp / "notes.ulg")],
-     "solarnav: error: notes.ulg: not a PX4 ULog file: it does not start with the ULog header bytes"),
+     "solarnav: error: notes.ulg: not a flight log solarnav reads: expected one of the formats: PX4 ULog (starts "
+     "with the bytes 55 4c 6f 67 01 12 35); ArduPilot DataFlash (starts with the bytes a3 95)"),
     (lambda logs, tmp: ["info", str(tmp / "absent.ulg")],
      "solarnav: error: {tmp}/absent.ulg: cannot read the file (No such file or directory)"),
     (lambda logs, tmp: ["info", str(logs / "sample_px4_events.ulg"), "--sun", str(tmp / "notes.ulg")],

@@ -12,8 +12,8 @@ import pytest
 from app.cli import EXIT_BAD_INPUT, main
 from estimators.sun import photocells
 from estimators.sun.prediction import attitude_matrices_at, sun_ned_at
+from ingest.log_formats import load_flight_log
 from ingest.sun_device import SunDevice
-from ingest.ulog_reader import load_flight_log
 from tests.conftest import SAMPLE_LOGS_DIR
 
 FAILED_CELL = [str(SAMPLE_LOGS_DIR / "failed_cell.ulg"), "--sun", str(SAMPLE_LOGS_DIR / "failed_cell_sun.csv"),

@@ -28,7 +28,7 @@ from estimators.inputs import build
 from estimators.inputs.records import GPS_POS, GPS_VEL
 from estimators.three_stage import run as ts
 from ingest.flightlog import FlightLog
-from ingest.ulog_reader import load_flight_log
+from ingest.log_formats import load_flight_log
 from tests.conftest import SAMPLE_LOGS_DIR
 from tests.estimators_synthetic import ALT0, LAT0, LON0, synthetic_flight
 

@@ -16,8 +16,8 @@ from ingest.dataflash_reader import flightlog_from_dataflash
 from ingest.errors import InputError
 from ingest.flightlog import FlightLog
 from ingest.frames import quat_to_euler
+from ingest.log_formats import load_flight_log
 from ingest.quality import assess_input_quality
-from ingest.ulog_reader import load_flight_log
 from sim.dataflash_writer import Message, dataflash_bytes
 
 STATIC, WALK = "arduplane_4.0.8_ground_static.bin", "arduplane_4.0.8_ground_walk.bin"

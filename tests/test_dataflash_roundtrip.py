@@ -10,7 +10,7 @@ import pytest
 from estimators.api import run_estimators
 from estimators.evaluation import config_for_simulation, rms_errors
 from ingest.flightlog import OPTIONAL_COLUMNS
-from ingest.ulog_reader import load_flight_log
+from ingest.log_formats import load_flight_log
 from sim.dataflash_writer import write_dataflash
 from sim.px4_export import side_file, write_outputs
 from sim.scenarios import SCENARIOS

@@ -9,7 +9,7 @@ import pytest
 from estimators import environment
 from estimators.api import ESTIMATORS, run_estimators
 from estimators.inputs.records import SENSOR_NAMES
-from ingest.ulog_reader import load_flight_log
+from ingest.log_formats import load_flight_log
 
 REAL_LOGS = ("sample.ulg", "sample_appended_multiple.ulg", "sample_log_small.ulg",
              "sample_logging_tagged_and_default_params.ulg", "sample_px4_events.ulg")

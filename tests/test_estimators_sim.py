@@ -11,7 +11,7 @@ import pytest
 from estimators.api import run_estimators
 from estimators.evaluation import PAPER_TABLE_2, config_for_simulation, rms_errors
 from estimators.inputs.records import PSEUDO_KINDS, SENSOR_NAMES
-from ingest.ulog_reader import load_flight_log
+from ingest.log_formats import load_flight_log
 from tests.conftest import SAMPLE_LOGS_DIR
 
 ESTIMATOR = "full_state_direct"

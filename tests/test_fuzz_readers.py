@@ -1,6 +1,6 @@
 """Fuzz tests of the input readers: a seeded mutation run per reader and the kept regression corpus.
 
-Contract: :func:`ingest.ulog_reader.load_flight_log`, :func:`ingest.sun_log.load_sun_log` and
+Contract: :func:`ingest.log_formats.load_flight_log`, :func:`ingest.sun_log.load_sun_log` and
 :func:`ingest.sun_log.load_sun_device` each return a result or raise :class:`ingest.errors.InputError`; any other
 exception, a hang (over the per-case time limit) or a crash (the worker dies) fails the test. Every input runs in
 a worker process (``fuzz_mutations.ReaderPool``), so a hang or a segfault fails with the case's seed and

@@ -36,10 +36,10 @@ from estimators.indirect import model as m
 from estimators.indirect import run as fsi
 from estimators.inputs import build, records
 from estimators.inputs.records import GPS_POS, GPS_VEL
-from ingest import load_sun_device, with_sun
 from ingest.flightlog import FlightLog
 from ingest.frames import euler_to_matrix, quat_to_matrix
-from ingest.ulog_reader import load_flight_log
+from ingest.log_formats import load_flight_log
+from ingest.sun_log import load_sun_device, with_sun
 from tests.conftest import SAMPLE_LOGS_DIR
 from tests.estimators_synthetic import assert_same_run, synthetic_flight
 

@@ -11,9 +11,9 @@ import pytest
 
 from ingest.errors import InputError
 from ingest.flightlog import STREAM_COLUMNS
+from ingest.log_formats import load_flight_log
 from ingest.sun_device import SunDevice
 from ingest.sun_log import attach_sun, load_sun_device, load_sun_log, with_sun
-from ingest.ulog_reader import load_flight_log
 
 MA_COLUMNS = [f"i{cell}_mA" for cell in range(1, 8)]
 A_COLUMNS = [f"i{cell}_A" for cell in range(1, 8)]

@@ -15,8 +15,9 @@ from pyulog import ULog
 from ingest.errors import FileTooLargeError, InputError
 from ingest.flightlog import OPTIONAL_COLUMNS, STREAM_COLUMNS
 from ingest.frames import euler_to_quat
+from ingest.log_formats import load_flight_log
 from ingest.px4_topics import ALL_TOPICS, RELATIVE_TIMESTAMP_INVALID, TRUTH_WIND_TOPIC
-from ingest.ulog_reader import firmware_version, flightlog_from_ulog, load_flight_log
+from ingest.ulog_reader import firmware_version, flightlog_from_ulog
 
 REAL_LOGS = ("sample.ulg", "sample_appended_multiple.ulg", "sample_log_small.ulg",
              "sample_logging_tagged_and_default_params.ulg", "sample_px4_events.ulg")
@@ -507,8 +508,10 @@ def test_path_bytes_and_file_object_give_the_same_log(real_logs_dir):
 
 @pytest.mark.parametrize(("content", "message"), [
     (b"", "flight.ulg: the file is empty"),
-    (b"unix_time_s,i1_mA\n0.0,1.0\n" * 20, "flight.ulg: not a PX4 ULog file: it does not start with the ULog"),
-    (np.random.default_rng(5).integers(0, 256, 50_000, dtype=np.uint8).tobytes(), "flight.ulg: not a PX4 ULog"),
+    (b"unix_time_s,i1_mA\n0.0,1.0\n" * 20,
+     "flight.ulg: not a flight log solarnav reads: expected one of the formats: PX4 ULog"),
+    (np.random.default_rng(5).integers(0, 256, 50_000, dtype=np.uint8).tobytes(),
+     "flight.ulg: not a flight log solarnav reads"),
 ])
 def test_not_a_ulog(content, message):
     with pytest.raises(InputError) as caught:

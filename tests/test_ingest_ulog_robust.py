@@ -14,8 +14,9 @@ import pytest
 from pyulog import ULog
 
 from ingest.errors import InputError
+from ingest.log_formats import load_flight_log
 from ingest.ulog_guard import PYULOG_HOOKS
-from ingest.ulog_reader import flightlog_from_ulog, load_flight_log
+from ingest.ulog_reader import flightlog_from_ulog
 
 #: Any test here taking longer than this [s] hangs (a clean parse of these files takes milliseconds).
 DEADLINE_S = 20

@@ -15,7 +15,7 @@ from estimators.api import FLAGGED_PREFIX, UNTRUSTED_PREFIX, checked_input_quali
 from ingest import quality
 from ingest.errors import InputError
 from ingest.flightlog import FlightLog
-from ingest.ulog_reader import load_flight_log
+from ingest.log_formats import load_flight_log
 from tests.conftest import SAMPLE_LOGS_DIR
 from tests.estimators_synthetic import synthetic_flight
 

@@ -132,7 +132,7 @@ def _with_field_spread(flight_log: FlightLog, spread: float) -> FlightLog:
 
 @pytest.fixture(scope="module")
 def paper_log():
-    from ingest.ulog_reader import load_flight_log
+    from ingest.log_formats import load_flight_log
     from tests.conftest import SAMPLE_LOGS_DIR
 
     return load_flight_log(SAMPLE_LOGS_DIR / "paper.ulg")
@@ -155,7 +155,7 @@ def test_heading_fusion_keeps_the_tilt_in_a_disturbed_field():
     """``mag_disturbed`` (docs/evaluation.md): the panel current adds up to 0.24 gauss along a body direction. Fused
     as a vector it tilts both full-state filters (measured: roll / pitch 2.5 / 4.5-5.0 deg); as a heading, the
     automatic choice on this log, roll and pitch stay below 1 deg and the yaw improves too (7.1-7.5 -> 1.8 deg)."""
-    from ingest.ulog_reader import load_flight_log
+    from ingest.log_formats import load_flight_log
     from sim.px4_export import write_outputs
     from sim.scenarios import SCENARIOS
     from sim.simulate import simulate

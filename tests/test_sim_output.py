@@ -14,8 +14,8 @@ import pytest
 from pyulog import ULog
 
 from app.cli import main
+from ingest.log_formats import load_flight_log
 from ingest.sun_log import load_sun_device, load_sun_log
-from ingest.ulog_reader import load_flight_log
 from sim.px4_export import output_paths, px4_topics, write_outputs
 from sim.scenarios import SCENARIOS
 from sim.simulate import STREAM_TOPICS, simulate

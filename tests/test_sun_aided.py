@@ -38,10 +38,10 @@ from estimators.indirect import model as m
 from estimators.inputs import build, records
 from estimators.sun import measurement as sun_measurement_model
 from estimators.three_stage import measurements as three_stage_models
-from ingest import attach_sun, load_sun_device, with_sun
 from ingest.frames import euler_to_matrix, euler_to_quat, quat_to_matrix
+from ingest.log_formats import load_flight_log
 from ingest.sun_device import SunDevice
-from ingest.ulog_reader import load_flight_log
+from ingest.sun_log import attach_sun, load_sun_device, with_sun
 from sim.px4_export import side_file
 from sim.scenarios import SCENARIOS, SensorSpec
 from sim.simulate import simulate

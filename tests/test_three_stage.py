@@ -25,8 +25,8 @@ from estimators.three_stage import measurements as meas
 from estimators.three_stage import model as m
 from estimators.three_stage import run as three_stage
 from estimators.three_stage import stages
-from ingest import load_flight_log
 from ingest.frames import euler_to_matrix
+from ingest.log_formats import load_flight_log
 from ingest.sun_log import with_sun
 
 TESTS_DIR = Path(__file__).resolve().parent

@@ -16,10 +16,11 @@ from pyulog import ULog
 from test_ingest_ulog_robust import IMU_FORMAT, data, fmt, header, imu_sample, keyed, message, subscribe, ulog_file
 
 from ingest.errors import InputError
+from ingest.log_formats import load_flight_log
 from ingest.px4_topics import ALL_TOPICS
 from ingest.ulog_fast import read_ulog
 from ingest.ulog_guard import parse_ulog
-from ingest.ulog_reader import flightlog_from_ulog, load_flight_log
+from ingest.ulog_reader import flightlog_from_ulog
 
 #: What a parse yields besides the topic data (pyulog's attributes).
 PARSED = ("_dropouts", "_logged_messages", "_logged_messages_tagged", "_changed_parameters", "_msg_info_dict",

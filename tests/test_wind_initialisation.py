@@ -135,7 +135,7 @@ def test_reversed_airflow_fraction_counts_backward_epochs():
 # ---------------------------------------------------------------------------------------------------------------
 @pytest.fixture(scope="module")
 def paper_log():
-    from ingest.ulog_reader import load_flight_log
+    from ingest.log_formats import load_flight_log
     from tests.conftest import SAMPLE_LOGS_DIR
 
     return load_flight_log(SAMPLE_LOGS_DIR / "paper.ulg")

@@ -26,7 +26,7 @@ from calib.tau import DEFAULT_TAU, TAU_METHODS, TauSelection, user_tau
 from estimators.api import DEFAULT_ESTIMATORS, parse_estimator_names
 from estimators.tuning import DEFAULT_BUDGET
 from ingest.errors import InputError
-from ingest.ulog_reader import load_flight_log
+from ingest.log_formats import load_flight_log
 from workflows.calibration import calibrate_log
 from workflows.exports import write_calibration_files
 

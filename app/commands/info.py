@@ -11,9 +11,9 @@ import math
 
 from ingest.errors import InputError
 from ingest.flightlog import FlightLog
+from ingest.log_formats import load_flight_log
 from ingest.quality import assess_input_quality
 from ingest.sun_log import load_sun_device, with_sun
-from ingest.ulog_reader import load_flight_log
 
 
 def add_parser(subparsers) -> None:

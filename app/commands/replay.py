@@ -20,8 +20,8 @@ from estimators.consistency import turbulence_intensity_m_s
 from estimators.inputs.records import HEADING_SOURCES
 from estimators.warmup import SUN_SOLVER, compile_side_by_side, prepare_compile
 from ingest.errors import InputError
+from ingest.log_formats import load_flight_log
 from ingest.sun_log import load_sun_device, with_sun
-from ingest.ulog_reader import load_flight_log
 from workflows.replay import TABLE_FORMATS, as_float32, replay_log, write_table
 
 

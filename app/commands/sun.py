@@ -11,8 +11,8 @@ import pandas as pd
 
 from app.commands.replay import checked_table_path
 from estimators.sun.prediction import ATTITUDE_STREAMS, sun_vector_table, usable_sun
+from ingest.log_formats import load_flight_log
 from ingest.sun_log import load_sun_device, with_sun
-from ingest.ulog_reader import load_flight_log
 from workflows.replay import write_table
 
 

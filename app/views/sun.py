@@ -10,7 +10,7 @@ import streamlit as st
 from app import adapters, figures, session, sun_compare
 from estimators.evaluation import position_origin
 from estimators.warmup import COMPILE_MESSAGE, SUN_SOLVER, cache_state
-from ingest import SunDevice
+from ingest.sun_device import SunDevice
 
 log = session.require_log()
 root, sha256 = session.root(), session.selected_sha256()
