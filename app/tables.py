@@ -469,3 +469,16 @@ def _rms_pivot(frame: pd.DataFrame, values: str, baseline: str) -> pd.DataFrame:
     wide = wide.reindex(index=pd.MultiIndex.from_tuples(order, names=["run", "estimator"]), columns=quantities)
     wide.columns.name = None
     return wide
+
+
+def verdict_channels(verdict: dict) -> pd.DataFrame:
+    """The channels behind an estimator's consistency verdict (``details["verdict"]`` of a run report,
+    :class:`estimators.consistency.EstimatorVerdict` as a dict): channel, verdict, mean NIS, updates, lag-1
+    autocorrelation, effective updates, accepted range and reason."""
+    rows = [{"channel": c["channel"], "verdict": c["verdict"], "mean NIS [-]": c["mean_nis"],
+             "updates": c["n_updates"], "lag-1 autocorrelation [-]": c["lag1_autocorrelation"],
+             "independent updates": c["n_effective"],
+             "accepted [-]": f"{c['accepted'][0]:.2f}..{c['accepted'][1]:.2f}", "why": c["reason"]}
+            for c in verdict["channels"]]
+    return pd.DataFrame(rows, columns=["channel", "verdict", "mean NIS [-]", "updates", "lag-1 autocorrelation [-]",
+                                       "independent updates", "accepted [-]", "why"])

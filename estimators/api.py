@@ -35,7 +35,8 @@ from estimators.config import EstimatorConfig
 from estimators.consistency import (
     REVERSED_AIRFLOW_LIMIT,
     channel_consistency,
-    consistency_warnings,
+    channel_verdicts,
+    estimator_verdict,
     reversed_airflow_fraction,
 )
 from estimators.core.results import DIAGNOSTIC_COLUMNS, STATE_COLUMNS, EstimatorReport, EstimatorRun
@@ -169,7 +170,8 @@ def run_estimators(flight_log: FlightLog, *, estimators: str | Sequence[str] = D
 
     Every report carries ``details["consistency"]`` (mean NIS per channel, :mod:`estimators.consistency`) and
     ``details["calibration"]`` (each calibrated figure behind the run's settings: its source and what this
-    estimator did with it). A run whose settings come from a calibration gets a warning per inconsistent channel.
+    estimator did with it) and ``details["verdict"]`` (the estimator's consistency verdict, one warning when it is
+    inconsistent).
     Every report also carries ``details["input_quality"]`` (the findings as dicts) and a warning per finding.
 
     Returns
@@ -263,8 +265,9 @@ def _stacked(names: tuple[str, ...], frames: list[pd.DataFrame], columns: Sequen
 
 def _checked_report(run: EstimatorRun, config: EstimatorConfig, timings: dict[str, float],
                     findings: Sequence[QualityFinding] = (), *, fixed_wing: bool = False) -> EstimatorReport:
-    """The run's report with its timings, the NIS consistency per channel, the calibration provenance, the input
-    quality findings (leading the warnings), for a calibrated run a warning per inconsistent channel, and for a
+    """The run's report with its timings, the NIS consistency per channel and the estimator's verdict
+    (:func:`estimators.consistency.estimator_verdict`; one warning when it is inconsistent), the calibration
+    provenance, the input quality findings (leading the warnings), and for a
     fixed-wing aircraft a warning when its wind estimate has the air flowing backwards through the airframe."""
     report = run.report
     channels = channel_consistency(run.diagnostics)
@@ -274,14 +277,17 @@ def _checked_report(run: EstimatorRun, config: EstimatorConfig, timings: dict[st
                     "use": f"ignored: {ignored[figure]}" if figure in ignored else use}
                    for figure, source, use in provenance]
     warnings = [*quality_warnings(findings), *report.warnings]
-    if provenance:
-        warnings += consistency_warnings(report.estimator, channels)
+    verdict = estimator_verdict(report.estimator, channel_verdicts(report.estimator, run.diagnostics, config.noise,
+                                                                   channels))
+    if verdict.status == "inconsistent":  # one warning for the estimator, its channels in the verdict
+        warnings.append(f"{report.estimator}: {verdict.summary}")
     reversed_share = reversed_airflow_fraction(run.states) if fixed_wing else math.nan
     if reversed_share > REVERSED_AIRFLOW_LIMIT:
         warnings.append(f"{report.estimator}: wind estimate not trusted: in {100 * reversed_share:.0f} % of the "
                         "wing-borne epochs the estimated air flows backwards through the airframe (the mirrored "
                         "solution of airspeed and sideslip; wind noise set too high or a wrong heading)")
     details = {**report.details, "consistency": [dataclasses.asdict(c) for c in channels],
+               "verdict": dataclasses.asdict(verdict),
                "reversed_airflow_fraction": reversed_share if math.isfinite(reversed_share) else None,
                "calibration": calibration, "input_quality": [dataclasses.asdict(f) for f in findings]}
     return replace(report, timings_s=timings, warnings=tuple(warnings), details=details)

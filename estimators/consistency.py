@@ -7,11 +7,13 @@ the estimated air flows forward through the airframe (docs/calibration.md, 'Nois
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
 
 from calib.figures import ChannelConsistency, mean_nis_band
+from estimators.config import NoiseConfig
 
 #: Mean NIS outside this range makes a channel inconsistent (a visible warning). The chi-square band of the mean
 #: of n NIS values is far narrower, but innovations are correlated in time (GPS, coloured sensor errors), which
@@ -49,17 +51,25 @@ def log_likelihood(diagnostics: pd.DataFrame) -> float:
     return float(-0.5 * np.sum(clipped + np.log(2.0 * np.pi * variance[good])))
 
 
-def channel_consistency(diagnostics: pd.DataFrame) -> tuple[ChannelConsistency, ...]:
-    """Mean NIS per ``sensor.component`` channel of one estimator's diagnostics, with the 95 % band of the mean of
-    that many chi-square(1) values; channels in the order of the ``sensor`` then ``component`` categories (sorted
-    names for plain columns), as a sorted groupby."""
+def _channel_keys(diagnostics: pd.DataFrame):
+    """(used rows mask, integer key per used row, sensor and component categoricals, component count): one key per
+    ``sensor.component`` channel, so per-channel sums are bincounts instead of a groupby (a 1-hour log has ~10^6
+    updates)."""
     nis = diagnostics["nis"].to_numpy(dtype=float)
     sensor = _as_categorical(diagnostics["sensor"])
     component = _as_categorical(diagnostics["component"])
     used = np.isfinite(nis) & (sensor.codes >= 0) & (component.codes >= 0)
     n_components = max(len(component.categories), 1)
-    # one integer key per (sensor, component): a bincount instead of a groupby (a 1-hour log has ~10^6 updates)
     key = sensor.codes.astype(np.int64)[used] * n_components + component.codes.astype(np.int64)[used]
+    return used, key, sensor, component, n_components
+
+
+def channel_consistency(diagnostics: pd.DataFrame) -> tuple[ChannelConsistency, ...]:
+    """Mean NIS per ``sensor.component`` channel of one estimator's diagnostics, with the 95 % band of the mean of
+    that many chi-square(1) values; channels in the order of the ``sensor`` then ``component`` categories (sorted
+    names for plain columns), as a sorted groupby."""
+    nis = diagnostics["nis"].to_numpy(dtype=float)
+    used, key, sensor, component, n_components = _channel_keys(diagnostics)
     keys, inverse, counts = np.unique(key, return_inverse=True, return_counts=True)
     sums = np.bincount(inverse, weights=nis[used], minlength=len(keys))
     out = []
@@ -70,20 +80,172 @@ def channel_consistency(diagnostics: pd.DataFrame) -> tuple[ChannelConsistency, 
     return tuple(out)
 
 
-def consistency_warnings(estimator: str, channels: tuple[ChannelConsistency, ...]) -> list[str]:
-    """One warning per channel whose mean NIS is outside :data:`NIS_WARNING_RANGE` (channels with fewer than
-    :data:`MIN_UPDATES` updates are not judged)."""
-    low, high = NIS_WARNING_RANGE
-    notes = []
+def innovation_autocorrelation(diagnostics: pd.DataFrame) -> dict[str, float]:
+    """Lag-1 autocorrelation of each channel's normalised innovations ``nu / sqrt(S)`` in update order (0 for white
+    innovations; near 1 for an error correlated over many updates, such as a GPS position's), by channel name."""
+    used, key, sensor, component, n_components = _channel_keys(diagnostics)
+    innovation = diagnostics["innovation"].to_numpy(dtype=float)
+    z = (innovation / np.sqrt(diagnostics["innovation_var"].to_numpy(dtype=float)))[used]
+    finite = np.isfinite(z)
+    z, key = z[finite], key[finite]
+    order = np.argsort(key, kind="stable")  # channels one after the other, each in update order
+    z, key = z[order], key[order]
+    keys, inverse, counts = np.unique(key, return_inverse=True, return_counts=True)
+    deviation = z - (np.bincount(inverse, weights=z, minlength=len(keys)) / np.maximum(counts, 1))[inverse]
+    variance = np.bincount(inverse, weights=deviation * deviation, minlength=len(keys))
+    same = inverse[1:] == inverse[:-1]
+    covariance = np.bincount(inverse[1:][same], weights=(deviation[1:] * deviation[:-1])[same], minlength=len(keys))
+    return {f"{sensor.categories[k // n_components]}.{component.categories[k % n_components]}":
+            float(c / v) if v > 0 else math.nan for k, c, v in zip(keys, covariance, variance, strict=True)}
+
+
+#: Verdicts of a channel (:class:`ChannelVerdict`).
+CONSISTENT, CONSERVATIVE, OVERCONFIDENT, AT_BOUND, NOT_JUDGED = (
+    "consistent", "conservative", "overconfident", "at documented bound", "not judged")
+#: Verdicts of an estimator (:class:`EstimatorVerdict`), best first.
+ESTIMATOR_STATUSES = ("consistent", "conservative", "inconsistent")
+#: A GPS noise up to this factor above the receiver's own accuracy (scale and floor) still counts as "the receiver's
+#: accuracy" for :func:`documented_bound`.
+RECEIVER_BOUND_TOLERANCE = 1.5
+
+
+@dataclass(frozen=True)
+class ChannelVerdict:
+    """How far one measurement channel's innovations agree with the filter's own error model.
+
+    Attributes
+    ----------
+    channel : str
+        ``"<sensor>.<component>"``.
+    verdict : str
+        :data:`CONSISTENT`, :data:`CONSERVATIVE` (mean NIS below the range: the noise is set higher than the flight
+        shows; the estimate is usable, its 1-sigma overstated), :data:`OVERCONFIDENT` (above the range: innovations
+        larger than the filter expects, from a noise set too low or a model error), :data:`AT_BOUND` (below the
+        range on a channel whose noise is a documented conservative bound) or :data:`NOT_JUDGED` (too few updates).
+    mean_nis : float
+        Mean of nu^2 / S [-] (1 for a consistent filter).
+    n_updates : int
+        Scalar updates.
+    lag1_autocorrelation : float
+        Of the normalised innovations [-] (:func:`innovation_autocorrelation`).
+    n_effective : float
+        Independent updates they are worth: ``n (1 - rho) / (1 + rho)`` for an AR(1) error (rho >= 0).
+    accepted : tuple of 2 float
+        Mean NIS range judged consistent: the wider of :data:`NIS_WARNING_RANGE` and the 95 % chi-square band of
+        the mean of ``n_effective`` values.
+    reason : str
+        The verdict in words (with the noise factor ``sqrt(mean NIS)`` or its inverse), or the documented bound.
+    """
+
+    channel: str
+    verdict: str
+    mean_nis: float
+    n_updates: int
+    lag1_autocorrelation: float
+    n_effective: float
+    accepted: tuple[float, float]
+    reason: str
+
+
+@dataclass(frozen=True)
+class EstimatorVerdict:
+    """One estimator's consistency verdict: ``status`` in :data:`ESTIMATOR_STATUSES` (inconsistent when any channel
+    is overconfident, conservative when any is conservative), a one-line ``summary`` naming the channels behind it,
+    and every channel's :class:`ChannelVerdict`."""
+
+    estimator: str
+    status: str
+    summary: str
+    channels: tuple[ChannelVerdict, ...]
+
+
+def documented_bound(estimator: str, channel: str, noise: NoiseConfig) -> str | None:
+    """Why a mean NIS below the range is expected on ``channel`` with ``noise`` (docs/calibration.md, 'Consistency
+    checks'), or None where it is not.
+
+    * the full-state filters' zero-sideslip pseudo-measurement: its noise bounds the unmodelled sideslip;
+    * the three-stage filter's accelerometer (gravity) pseudo-measurement, whose variance the eq 52 tau inflates for
+      the manoeuvre accelerations it does not model;
+    * a GPS position whose noise is the receiver's own reported accuracy (eph / epv, scale and floor within
+      :data:`RECEIVER_BOUND_TOLERANCE` of the defaults): the receiver's error is correlated over minutes and the
+      filter follows it, so its innovations are smaller than the accuracy the receiver reports.
+    """
+    sensor, _, component = channel.partition(".")
+    if sensor == "sideslip":
+        return "the zero-sideslip pseudo-measurement's noise bounds the unmodelled sideslip"
+    if sensor == "accel" and estimator == "three_stage":
+        return "the gravity pseudo-measurement's variance is inflated (eq 52 tau) for unmodelled manoeuvres"
+    if sensor == "gps_pos":
+        default = NoiseConfig()
+        vertical = component == "d"
+        scale, default_scale = ((noise.gps_hgt_epv_scale, default.gps_hgt_epv_scale) if vertical
+                                else (noise.gps_pos_eph_scale, default.gps_pos_eph_scale))
+        floor, default_floor = ((noise.gps_hgt_sigma_floor_m, default.gps_hgt_sigma_floor_m) if vertical
+                                else (noise.gps_pos_sigma_floor_m, default.gps_pos_sigma_floor_m))
+        if 0 < scale <= RECEIVER_BOUND_TOLERANCE * default_scale and floor <= RECEIVER_BOUND_TOLERANCE * default_floor:
+            return "the noise is the receiver's reported accuracy, whose error is correlated over minutes"
+    return None
+
+
+def channel_verdicts(estimator: str, diagnostics: pd.DataFrame, noise: NoiseConfig,
+                     channels: tuple[ChannelConsistency, ...] | None = None) -> tuple[ChannelVerdict, ...]:
+    """Every channel of one estimator's diagnostics judged against its own error model: the acceptance range
+    widens with the innovations' correlation (fewer independent updates), and a channel with a
+    :func:`documented_bound` is :data:`AT_BOUND` rather than conservative (``channels``: its
+    :func:`channel_consistency`, computed when None)."""
+    channels = channel_consistency(diagnostics) if channels is None else channels
+    correlation = innovation_autocorrelation(diagnostics)
+    out = []
     for c in channels:
-        if c.n_updates < MIN_UPDATES or low <= c.mean_nis <= high:
-            continue
-        verdict = "innovations larger than the filter expects (noise set too low or a model error)" \
-            if c.mean_nis > high else "innovations smaller than the filter expects (noise set too high)"
-        notes.append(f"{estimator}: channel {c.channel} inconsistent, mean NIS {c.mean_nis:.2f} over "
-                     f"{c.n_updates} updates (expected {low:g}..{high:g}; chi-square 95 % band {c.band[0]:.2f}.."
-                     f"{c.band[1]:.2f}): {verdict}")
-    return notes
+        rho = correlation.get(c.channel, math.nan)
+        n_effective = c.n_updates * (1.0 - rho) / (1.0 + rho) if math.isfinite(rho) and rho > 0 else c.n_updates
+        n_effective = max(1.0, min(float(c.n_updates), n_effective))
+        band = mean_nis_band(max(1, round(n_effective)))
+        accepted = (min(NIS_WARNING_RANGE[0], band[0]), max(NIS_WARNING_RANGE[1], band[1]))
+        bound = documented_bound(estimator, c.channel, noise)
+        if c.n_updates < MIN_UPDATES:
+            verdict, reason = NOT_JUDGED, f"only {c.n_updates} updates"
+        elif c.mean_nis > accepted[1]:
+            verdict = OVERCONFIDENT
+            reason = (f"innovations ~{math.sqrt(c.mean_nis):.1f}x larger than the filter expects (noise set too low "
+                      "or a model error)")
+        elif c.mean_nis < accepted[0] and bound is not None:
+            verdict, reason = AT_BOUND, bound
+        elif c.mean_nis < accepted[0]:
+            verdict = CONSERVATIVE
+            reason = (f"noise set ~{math.sqrt(1.0 / max(c.mean_nis, 1e-12)):.1f}x higher than the flight shows "
+                      "(estimate usable, its 1-sigma overstated)")
+        else:
+            verdict, reason = CONSISTENT, "inside its range"
+        out.append(ChannelVerdict(channel=c.channel, verdict=verdict, mean_nis=c.mean_nis, n_updates=c.n_updates,
+                                  lag1_autocorrelation=rho, n_effective=n_effective, accepted=accepted,
+                                  reason=reason))
+    return tuple(out)
+
+
+def estimator_verdict(estimator: str, verdicts: tuple[ChannelVerdict, ...]) -> EstimatorVerdict:
+    """The one-line verdict of an estimator from its channels' (:func:`channel_verdicts`)."""
+    def listed(kind: str) -> list[ChannelVerdict]:
+        return [v for v in verdicts if v.verdict == kind]
+
+    overconfident, conservative, bounded = listed(OVERCONFIDENT), listed(CONSERVATIVE), listed(AT_BOUND)
+    parts = []
+    if overconfident:
+        parts.append("inconsistent: " + ", ".join(f"{v.channel} (mean NIS {v.mean_nis:.2f}: innovations "
+                                                   f"~{math.sqrt(v.mean_nis):.1f}x larger than expected)"
+                                                   for v in overconfident)
+                     + ": noise set too low or a model error; do not trust this estimate's 1-sigma")
+    if conservative:
+        parts.append(("conservative: " if not overconfident else "conservative on ")
+                     + ", ".join(f"{v.channel} (noise ~{math.sqrt(1.0 / max(v.mean_nis, 1e-12)):.1f}x above the "
+                                 "flight's)" for v in conservative)
+                     + ("" if overconfident else ": estimate usable, its 1-sigma overstated"))
+    status = "inconsistent" if overconfident else "conservative" if conservative else "consistent"
+    if not parts:
+        judged = sum(v.verdict != NOT_JUDGED for v in verdicts)
+        parts.append(f"consistent ({judged} channels inside their range"
+                     + (f"; {', '.join(v.channel for v in bounded)} at documented bounds" if bounded else "") + ")")
+    return EstimatorVerdict(estimator=estimator, status=status, summary="; ".join(parts), channels=verdicts)
 
 
 def turbulence_intensity_m_s(states: pd.DataFrame, *, settle_s: float = 60.0) -> float:

@@ -158,7 +158,7 @@ def test_estimators_run_compare_and_diagnose(open_page, workspace_dir):
     assert titles == ["Errors against the truth"]
 
     at.segmented_control(key="est_panel").set_value("Innovations and NIS").run()
-    [summary] = _frames(at, lambda v: "mean NIS [-]" in v.columns)
+    [summary] = _frames(at, lambda v: "mean NIS [-]" in v.columns and "estimator" in v.columns)
     assert set(summary["estimator"]) == set(rms.index)
     at.selectbox(key="est_diag_estimator").set_value("full_state_direct").run()
     at.selectbox(key="est_diag_sensor").set_value("gps_vel").run()

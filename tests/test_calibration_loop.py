@@ -29,13 +29,18 @@ from calib.filter_figures import calibration_figures
 from estimators import environment
 from estimators.api import run_estimators
 from estimators.calibration_replay import inflight_bias
-from estimators.config import EstimatorConfig, config_from_calibration, config_from_figures
+from estimators.config import EstimatorConfig, NoiseConfig, config_from_calibration, config_from_figures
 from estimators.consistency import (
+    CONSERVATIVE,
+    CONSISTENT,
     LIKELIHOOD_CLIP_SIGMA,
     MIN_UPDATES,
     NIS_WARNING_RANGE,
+    NOT_JUDGED,
+    OVERCONFIDENT,
     channel_consistency,
-    consistency_warnings,
+    channel_verdicts,
+    estimator_verdict,
     log_likelihood,
     turbulence_intensity_m_s,
 )
@@ -295,12 +300,16 @@ def test_channel_band_and_warnings():
         assert c.band == pytest.approx((chi2.ppf(0.025, c.n_updates) / c.n_updates,
                                         chi2.ppf(0.975, c.n_updates) / c.n_updates))
     assert channels["mag.x"].mean_nis == pytest.approx(5.0) and channels["mag.x"].n_updates == n
-    warnings = consistency_warnings("est", tuple(channels.values()))
-    assert len(warnings) == 2
-    high, low = (next(w for w in warnings if f"channel {name} " in w) for name in ("mag.x", "mag.y"))
-    assert high.startswith("est: channel mag.x inconsistent, mean NIS 5.00") and "larger than" in high
-    assert "mean NIS 0.10" in low and "smaller than" in low
-    assert consistency_warnings("est", (channels["mag.z"], channels["baro.alt"], channels["airspeed.tas"])) == []
+    sign = np.where(np.arange(len(rows)) % 2 == 0, 1.0, -1.0)  # white: no correlation between updates
+    diagnostics = _diagnostics(rows).assign(innovation=lambda f: sign * np.sqrt(f["nis"] * f["innovation_var"]))
+    verdicts = {v.channel: v for v in channel_verdicts("est", diagnostics, NoiseConfig(), tuple(channels.values()))}
+    assert {name: v.verdict for name, v in verdicts.items()} == {
+        "baro.alt": CONSISTENT, "mag.x": OVERCONFIDENT, "mag.y": CONSERVATIVE, "mag.z": CONSISTENT,
+        "airspeed.tas": NOT_JUDGED}
+    verdict = estimator_verdict("est", tuple(verdicts.values()))
+    assert verdict.status == "inconsistent"
+    assert verdict.summary.startswith("inconsistent: mag.x (mean NIS 5.00: innovations ~2.2x larger than expected)")
+    assert "conservative on mag.y (noise ~3.2x above the flight's)" in verdict.summary
 
 
 def test_turbulence_intensity_of_a_sinusoidal_gust():
@@ -340,9 +349,11 @@ def test_per_estimator_configs_and_inconsistency_warnings(cell_log, cell_cal):
     assert uses["baro_noise"].startswith("ignored: the barometer is a low-passed input")
     consistency = {c["channel"]: c for c in reports["full_state_indirect"].details["consistency"]}
     assert consistency["baro.alt"]["mean_nis"] > 100.0
-    assert any("channel baro.alt inconsistent" in w for w in reports["full_state_indirect"].warnings)
+    verdict = reports["full_state_indirect"].details["verdict"]
+    assert verdict["status"] == "inconsistent" and verdict["summary"].startswith("inconsistent: baro.alt")
+    assert f"full_state_indirect: {verdict['summary']}" in reports["full_state_indirect"].warnings  # one warning
     assert not any("baro.alt" in w for name in ("three_stage", "full_state_direct") for w in reports[name].warnings)
-    assert reports["full_state_direct"].details["consistency"]  # judged, but no warning without a calibration
+    assert reports["full_state_direct"].details["verdict"]["status"] != "inconsistent"  # judged with its own noise
 
 
 def test_replay_cli_warns_about_an_inconsistent_channel(cell_cal, tmp_path, capsys):
@@ -350,8 +361,9 @@ def test_replay_cli_warns_about_an_inconsistent_channel(cell_cal, tmp_path, caps
     assert main(["replay", str(FAILED_CELL), "--calib", str(path), "--estimators", "full_state_indirect",
                  "--rate-hz", "1", "-o", str(tmp_path / "states.csv")]) == 0
     printed = capsys.readouterr().out.splitlines()
-    warnings = [line for line in printed if line.strip().startswith("WARNING:")]
-    assert any("full_state_indirect: channel baro.alt inconsistent" in line for line in warnings), printed
+    verdicts = [line for line in printed if line.strip().startswith("verdict:")]
+    assert len(verdicts) == 1 and verdicts[0].strip().startswith("verdict: inconsistent: baro.alt"), printed
+    assert not any("inconsistent" in line for line in printed if "WARNING" in line)  # said once, as the verdict
     assert any("turbulence intensity" in line for line in printed if line.startswith("full_state_indirect:"))
 
 

@@ -1,5 +1,5 @@
 """``solarnav replay LOG.ulg [--sun SUN.csv] [--device DEV.json] [--calib CALIB.json] [--estimators a,b,c]
-[--rate-hz 50] [--heading mag|sun|mag+sun] [--force] [--float32] -o OUT.parquet|OUT.csv
+[--rate-hz 50] [--heading mag|sun|mag+sun] [--force] [--float32] [--details] -o OUT.parquet|OUT.csv
 [--diagnostics DIAG.parquet|DIAG.csv]``:
 re-run the estimators on a log and write their states (one row per estimator per output epoch).
 
@@ -43,6 +43,8 @@ def add_parser(subparsers) -> None:
     parser.add_argument("--float32", action="store_true",
                         help="write the states and diagnostics as float32 (about half the file; time_s, lat_deg and "
                              "lon_deg stay float64: float32 would round them to ms and metres)")
+    parser.add_argument("--details", action="store_true",
+                        help="print every measurement channel behind each estimator's consistency verdict")
     parser.add_argument("-o", "--output", required=True, metavar="OUT.parquet|OUT.csv", help="states file")
     parser.add_argument("--diagnostics", metavar="DIAG.parquet|DIAG.csv",
                         help="also write one row per measurement update (innovation, variance, NIS, accepted)")
@@ -72,7 +74,7 @@ def run(args: argparse.Namespace) -> int:
     write_table(narrow(result.states), outputs[0])
     if args.diagnostics is not None:
         write_table(narrow(result.diagnostics), outputs[1])
-    print(format_summary(result, outputs))
+    print(format_summary(result, outputs, details=args.details))
     return 0
 
 
@@ -97,10 +99,11 @@ def checked_table_path(path: str, option: str) -> Path:
     return out
 
 
-def format_summary(result: ReplayResult, outputs: list[Path]) -> str:
-    """The input quality findings first (a refused one replayed with ``--force`` as ``UNTRUSTED INPUT``), then one
-    line per estimator (epochs, sensors used, resets, kernel time, turbulence intensity), its degradations, the
-    calibrated figures it used or ignored, its warnings (inconsistent channels among them) and the files written."""
+def format_summary(result: ReplayResult, outputs: list[Path], *, details: bool = False) -> str:
+    """The input quality findings first (a refused one replayed with ``--force`` as ``UNTRUSTED INPUT``), then per
+    estimator one line (epochs, sensors used, resets, kernel time, turbulence intensity), its consistency verdict
+    (with every channel behind it when ``details``), its degradations, the calibrated figures it used or ignored,
+    its other warnings and the files written."""
     shown = quality_warnings(result.input_quality)  # once at the top, not again under each estimator
     lines = [f"WARNING: {warning}" for warning in shown]
     for name, report in result.reports.items():
@@ -110,9 +113,17 @@ def format_summary(result: ReplayResult, outputs: list[Path]) -> str:
         lines.append(f"{name}: {len(states)} epochs, used {', '.join(report.used) or 'none'}; skipped {skipped}; "
                      f"{report.resets} resets; {report.timings_s.get('kernel', float('nan')):.2f} s"
                      + (f"; turbulence intensity {turbulence:.2f} m/s" if math.isfinite(turbulence) else ""))
+        verdict = report.details["verdict"]
+        lines.append(f"  verdict: {verdict['summary']}")
+        if details:
+            lines += [f"    {c['channel']:<16} {c['verdict']:<20} mean NIS {c['mean_nis']:8.3f} over "
+                      f"{c['n_updates']:6d} (lag-1 {c['lag1_autocorrelation']:5.2f}, {c['n_effective']:7.0f} "
+                      f"independent; accepted {c['accepted'][0]:.2f}..{c['accepted'][1]:.2f}): {c['reason']}"
+                      for c in verdict["channels"]]
         lines += [f"  degraded: {d}" for d in report.degradations]
         lines += [f"  calibration: {item['figure']} [{item['source']}]: {item['use']}"
                   for item in report.details.get("calibration", [])]
-        lines += [f"  WARNING: {w}" for w in report.warnings if w not in shown]
+        verdict_warning = f"{name}: {verdict['summary']}"
+        lines += [f"  WARNING: {w}" for w in report.warnings if w not in shown and w != verdict_warning]
     lines += [f"wrote {p}" for p in outputs]
     return "\n".join(lines)

@@ -128,6 +128,14 @@ results = {name: adapters.run_comparison(root, sha256, rid) for name, rid in sho
 report, result = reports[names[baseline]], results[names[baseline]]
 
 
+def show_verdict(label: str, verdict: dict | None) -> None:
+    """One element per estimator and run: its consistency verdict (green consistent, blue conservative, red
+    inconsistent); the channels behind it are in the estimator's details."""
+    if verdict is not None:  # (None: a run stored before verdicts existed)
+        box = {"consistent": st.success, "conservative": st.info}.get(verdict["status"], st.error)
+        box(f"**{label}** innovations: {verdict['summary']}")
+
+
 def widget_key(base: str, index: int) -> str:
     """A widget key unique per shown run (the single-run page keeps its historical keys)."""
     return f"{base}_{index}" if multi else base
@@ -140,15 +148,17 @@ for index, (run_name, run_report) in enumerate(reports.items()):
     for warning in untrusted:  # a forced run's refused inputs, once for all estimators, never collapsed
         st.error(prefix + warning)
     for name, facts in run_report.items():
-        # inconsistent channels of a calibrated run are never hidden in the collapsed details
-        for warning in facts["warnings"]:
-            if "inconsistent" in warning:
-                st.warning(prefix + warning)
+        show_verdict(f"{prefix}{name}", facts["details"].get("verdict"))
         with st.expander(f"{prefix}{name}: used {', '.join(facts['used']) or 'nothing'}; "
                          f"{facts['timings_s'].get('total', float('nan')):.1f} s"):
+            verdict_warning = f"{name}: {facts['details'].get('verdict', {}).get('summary')}"
             for reason in (*[f"skipped {k}: {v}" for k, v in facts["skipped"].items()], *facts["degradations"],
-                           *facts["warnings"]):
+                           *(w for w in facts["warnings"] if w != verdict_warning)):
                 st.warning(reason)
+            if facts["details"].get("verdict"):
+                st.caption("Consistency of each measurement channel (docs/calibration.md, 'Consistency checks')")
+                st.dataframe(tables.verdict_channels(facts["details"]["verdict"]), hide_index=True,
+                             key=widget_key(f"verdict_{name}", index))
             if facts["details"].get("calibration"):
                 st.caption("Calibrated figures: source and what this estimator did with each")
                 st.dataframe(pd.DataFrame(facts["details"]["calibration"]), hide_index=True,
