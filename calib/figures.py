@@ -143,8 +143,8 @@ class FigureRow:
     sources : tuple of str
         :data:`SOURCES` the calibration and the identification set it from (a hand edit in CALIB.json may give
         any figure :data:`SOURCE_DEFAULT` or :data:`SOURCE_USER`).
-    setting : FigureSetting or None
-        The estimator setting it feeds; None: none (the run's report says it is ignored).
+    setting : FigureSetting
+        The estimator setting it feeds, and how.
     ignored : tuple of (str, str)
         ``(estimator, why)`` for every estimator that has no use for the setting.
     identification : Identification or None
@@ -155,7 +155,7 @@ class FigureRow:
     unit: str
     meaning: str
     sources: tuple[str, ...]
-    setting: FigureSetting | None
+    setting: FigureSetting
     ignored: tuple[tuple[str, str], ...] = ()
     identification: Identification | None = None
 
