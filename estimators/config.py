@@ -407,7 +407,7 @@ def config_from_figures(figures, base: EstimatorConfig | None = None) -> Estimat
         rule = spec.rule if spec is not None else None
         if rule in (RULE_NOISE, RULE_NOISE_PER_STRENGTH):
             if rule == RULE_NOISE_PER_STRENGTH and not strength > 0:
-                continue  # unlike the per-axis rule, no provenance line (as before the table)
+                continue  # no provenance line, unlike the per-axis rule: every configuration stays as it was
             measured = figure.value / strength if rule == RULE_NOISE_PER_STRENGTH else figure.value
             value, how = setting(measured, figure.source, noise_default(noise, spec))
             changes[spec.fields[0]] = value
