@@ -458,7 +458,7 @@ def _figure_name(r: _Reader, name: str, path: str) -> str:
 def _figure_from_dict(r: _Reader, name: str, data: Any, path: str) -> Figure:
     obj = r.obj(data, "", path)
     _figure_name(r, name, path)
-    unit, expected = r.text(obj, "unit", path), FIGURES[name][0]
+    unit, expected = r.text(obj, "unit", path), FIGURES[name].unit
     if unit != expected:
         raise r.fail(f"{path}.unit", f"figure {name!r} is in {expected!r}, got {unit!r}")
     figure_source = r.text(obj, "source", path)

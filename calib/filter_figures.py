@@ -22,6 +22,7 @@ import numpy as np
 
 from calib.calibration import Calibration
 from calib.figures import (
+    FIGURES,
     SOURCE_ALLAN,
     SOURCE_INFLIGHT,
     SOURCE_INFLIGHT_BIAS,
@@ -47,21 +48,23 @@ def calibration_figures(cal: Calibration) -> dict[str, Figure]:
     if cal.figures:
         return dict(cal.figures)
     figures: dict[str, Figure] = {}
-    for name, sensor in (("gyro_noise_density", "gyroscope"), ("accel_noise_density", "accelerometer")):
+    for name, sensor in ((FIGURES.gyro_noise_density.name, "gyroscope"),
+                         (FIGURES.accel_noise_density.name, "accelerometer")):
         figure = _imu_density(cal, name, sensor)
         if figure is not None:
             figures[name] = figure
     accel_axes = _accel_axis_density(cal)
     if accel_axes is not None:
-        figures["accel_axis_noise_density"] = accel_axes
-    for name, sensor in (("gyro_bias_walk", "gyroscope"), ("accel_bias_walk", "accelerometer")):
+        figures[accel_axes.name] = accel_axes
+    for name, sensor in ((FIGURES.gyro_bias_walk.name, "gyroscope"), (FIGURES.accel_bias_walk.name, "accelerometer")):
         walks = [f.rate_random_walk for f in cal.allan.get(sensor, ()) if math.isfinite(f.rate_random_walk)]
         if walks:
             figures[name] = Figure(name, rms(walks), SOURCE_ALLAN, note=f"Allan rate random walk, RMS of the "
                                                                         f"{len(walks)} axes with a +1/2 slope")
     figures.update(_biases(cal))
-    figures["accel_tau"] = Figure("accel_tau", cal.tau.tau, SOURCE_TAU, note=f"chosen by: {cal.tau.method}")
-    for name, sensor in (("baro_noise", "barometer"), ("airspeed_noise", "airspeed")):
+    tau = FIGURES.accel_tau.name
+    figures[tau] = Figure(tau, cal.tau.tau, SOURCE_TAU, note=f"chosen by: {cal.tau.method}")
+    for name, sensor in ((FIGURES.baro_noise.name, "barometer"), (FIGURES.airspeed_noise.name, "airspeed")):
         sigma = _r_sigma(cal, sensor)
         # at rest the airspeed is rectified pressure noise (the speed error scales with 1 / (rho V)): meaningless
         # for the filters, which fuse airspeed only in flight
@@ -73,20 +76,20 @@ def calibration_figures(cal: Calibration) -> dict[str, Figure]:
         diagonal = np.diag(cal.r_matrix("magnetometer"))
         if np.all(np.isfinite(diagonal)) and np.all(diagonal > 0):
             axes = tuple(float(v) for v in np.sqrt(diagonal))
-            figures["mag_noise"] = Figure("mag_noise", rms(axes), _measurement_source(cal, "magnetometer"),
-                                          axes=axes, note=SOURCE_R)
+            mag = FIGURES.mag_noise.name
+            figures[mag] = Figure(mag, rms(axes), _measurement_source(cal, "magnetometer"), axes=axes, note=SOURCE_R)
             strength = float(np.linalg.norm(cal.sensors["magnetometer"].mean))
             if strength > 0:
-                figures["mag_field_strength"] = Figure("mag_field_strength", strength,
-                                                       _measurement_source(cal, "magnetometer"),
-                                                       note="|mean field| over the segment")
+                name = FIGURES.mag_field_strength.name
+                figures[name] = Figure(name, strength, _measurement_source(cal, "magnetometer"),
+                                       note="|mean field| over the segment")
     if "gps_velocity" in cal.sensors:
         sensor = cal.sensors["gps_velocity"]
         horizontal = [s for s in sensor.sigma[:2] if math.isfinite(s) and s > 0]
         if horizontal:
-            figures["gps_vel_noise"] = Figure("gps_vel_noise", rms(horizontal), _measurement_source(cal,
-                                                                                                  "gps_velocity"),
-                                              note="used only when the receiver reports no speed accuracy")
+            name = FIGURES.gps_vel_noise.name
+            figures[name] = Figure(name, rms(horizontal), _measurement_source(cal, "gps_velocity"),
+                                   note="used only when the receiver reports no speed accuracy")
     return figures
 
 
@@ -118,34 +121,34 @@ def _accel_axis_density(cal: Calibration) -> Figure | None:
     if not (len(noise) == 3 and np.all(np.isfinite(noise)) and np.all(noise > 0)):
         return None
     axes = tuple(float(v) for v in noise / np.sqrt(sensor.fir.fs_hz))
-    return Figure("accel_axis_noise_density", rms(axes), _measurement_source(cal, "accelerometer"), axes=axes,
-                  note=f"{cal.noise} per axis / sqrt({sensor.fir.fs_hz:.1f} Hz) (eq 51 without tau)")
+    return Figure(FIGURES.accel_axis_noise_density.name, rms(axes), _measurement_source(cal, "accelerometer"),
+                  axes=axes, note=f"{cal.noise} per axis / sqrt({sensor.fir.fs_hz:.1f} Hz) (eq 51 without tau)")
 
 
 def _biases(cal: Calibration) -> dict[str, Figure]:
     """Gyro and accelerometer biases: the in-flight filter estimate where present, else the still segment's."""
     out = {}
+    gyro, accel = FIGURES.gyro_bias.name, FIGURES.accel_bias.name
     flight, still = cal.inflight_bias, cal.stationary_bias
     if flight is not None and not (_converged(flight.gyro_bias_std_rad_s, MAX_GYRO_BIAS_STD_RAD_S)
                                    and _converged(flight.accel_bias_std_m_s2, MAX_ACCEL_BIAS_STD_M_S2)):
         flight = None  # an estimate that has not converged (short flight, few turns) is no calibration
     if flight is not None:
-        out["gyro_bias"] = Figure("gyro_bias", rms(flight.gyro_bias_rad_s), SOURCE_INFLIGHT_BIAS,
-                                  axes=tuple(flight.gyro_bias_rad_s),
-                                  note=f"{flight.source} bias states over {flight.window_s[0]:.0f}.."
-                                       f"{flight.window_s[1]:.0f} s")
+        out[gyro] = Figure(gyro, rms(flight.gyro_bias_rad_s), SOURCE_INFLIGHT_BIAS, axes=tuple(flight.gyro_bias_rad_s),
+                           note=f"{flight.source} bias states over {flight.window_s[0]:.0f}.."
+                                f"{flight.window_s[1]:.0f} s")
         if flight.accel_bias_m_s2 is not None:
-            out["accel_bias"] = Figure("accel_bias", rms(flight.accel_bias_m_s2), SOURCE_INFLIGHT_BIAS,
-                                       axes=tuple(flight.accel_bias_m_s2), note=f"{flight.source} bias states")
+            out[accel] = Figure(accel, rms(flight.accel_bias_m_s2), SOURCE_INFLIGHT_BIAS,
+                                axes=tuple(flight.accel_bias_m_s2), note=f"{flight.source} bias states")
     if still is not None:
-        if "gyro_bias" not in out:
-            out["gyro_bias"] = Figure("gyro_bias", rms(still.gyro_bias_rad_s), SOURCE_STILL_BIAS,
-                                      axes=tuple(still.gyro_bias_rad_s), note="mean rate over the still segment")
-        if "accel_bias" not in out and all(math.isfinite(v) for v in still.accel_bias_body_m_s2):
-            out["accel_bias"] = Figure("accel_bias", rms(still.accel_bias_body_m_s2), SOURCE_STILL_BIAS,
-                                       axes=tuple(still.accel_bias_body_m_s2),
-                                       note="component along gravity only (one orientation); the horizontal "
-                                            "components are not identifiable from it")
+        if gyro not in out:
+            out[gyro] = Figure(gyro, rms(still.gyro_bias_rad_s), SOURCE_STILL_BIAS, axes=tuple(still.gyro_bias_rad_s),
+                               note="mean rate over the still segment")
+        if accel not in out and all(math.isfinite(v) for v in still.accel_bias_body_m_s2):
+            out[accel] = Figure(accel, rms(still.accel_bias_body_m_s2), SOURCE_STILL_BIAS,
+                                axes=tuple(still.accel_bias_body_m_s2),
+                                note="component along gravity only (one orientation); the horizontal components "
+                                     "are not identifiable from it")
     return out
 
 

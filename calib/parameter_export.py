@@ -57,7 +57,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from calib.calibration import Calibration
-from calib.figures import Figure
+from calib.figures import FIGURES, Figure
 from calib.filter_figures import calibration_figures
 from ingest.errors import InputError
 from ingest.files import atomic_write_text
@@ -165,44 +165,44 @@ _AP_GNSS = "lower limit on the receiver's speed accuracy (AP_NavEKF3_Measurement
 
 #: The one table (ranges from PX4 module.yaml / params_*.yaml and ArduPilot AP_NavEKF3.cpp @Range).
 MAPPING: tuple[MappingRow, ...] = (
-    MappingRow("gyro_noise_density",
+    MappingRow(FIGURES.gyro_noise_density.name,
                ParameterSpec("EKF2_GYR_NOISE", "rad/s", 0.0001, 0.1, PER_STEP,
                              f"delta-angle variance (dt noise)^2 per step ({_PX4_COV})"),
                ParameterSpec("EK3_GYRO_P_NSE", "rad/s", 0.0001, 0.1, PER_STEP,
                              f"delta-angle variance (dt noise)^2 per step ({_AP_COV})")),
-    MappingRow("accel_noise_density",
+    MappingRow(FIGURES.accel_noise_density.name,
                ParameterSpec("EKF2_ACC_NOISE", "m/s^2", 0.01, 1.0, PER_STEP,
                              f"delta-velocity variance (dt noise)^2 per step ({_PX4_COV})"),
                ParameterSpec("EK3_ACC_P_NSE", "m/s^2", 0.01, 1.0, PER_STEP,
                              f"delta-velocity variance (dt noise)^2 per step ({_AP_COV})")),
-    MappingRow("gyro_bias_walk",
+    MappingRow(FIGURES.gyro_bias_walk.name,
                ParameterSpec("EKF2_GYR_B_NOISE", "rad/s^2", 0.0, 0.01, PER_STEP,
                              f"gyro-bias variance (dt noise)^2 per step ({_PX4_COV})"),
                ParameterSpec("EK3_GBIAS_P_NSE", "rad/s^2", 0.00001, 0.001, PER_STEP,
                              f"gyro-bias variance (dt noise)^2 per step ({_AP_COV})")),
-    MappingRow("accel_bias_walk",
+    MappingRow(FIGURES.accel_bias_walk.name,
                ParameterSpec("EKF2_ACC_B_NOISE", "m/s^3", 0.0, 0.01, PER_STEP,
                              f"accelerometer-bias variance (dt noise)^2 per step ({_PX4_COV})"),
                ParameterSpec("EK3_ABIAS_P_NSE", "m/s^3", 0.00001, 0.02, PER_STEP,
                              f"accelerometer-bias variance (dt noise)^2 per step ({_AP_COV})")),
-    MappingRow("mag_noise",
+    MappingRow(FIGURES.mag_noise.name,
                ParameterSpec("EKF2_MAG_NOISE", "gauss", 0.001, 1.0, SAME, "3-axis magnetometer fusion noise"),
                ParameterSpec("EK3_MAG_M_NSE", "gauss", 0.01, 0.5, SAME, "RMS magnetometer measurement noise")),
-    MappingRow("baro_noise",
+    MappingRow(FIGURES.baro_noise.name,
                ParameterSpec("EKF2_BARO_NOISE", "m", 0.01, 15.0, SAME, "barometric altitude noise"),
                ParameterSpec("EK3_ALT_M_NSE", "m", 0.01, 100.0, SAME, "RMS altitude measurement noise")),
-    MappingRow("airspeed_noise",
+    MappingRow(FIGURES.airspeed_noise.name,
                ParameterSpec("EKF2_EAS_NOISE", "m/s", 0.5, 5.0, SAME, "airspeed fusion noise (EAS)"),
                ParameterSpec("EK3_EAS_M_NSE", "m/s", 0.5, 5.0, SAME, "RMS equivalent-airspeed noise")),
-    MappingRow("gps_vel_noise",
+    MappingRow(FIGURES.gps_vel_noise.name,
                ParameterSpec("EKF2_GPS_V_NOISE", "m/s", 0.01, 5.0, SAME, _PX4_GNSS),
                ParameterSpec("EK3_VELNE_M_NSE", "m/s", 0.05, 5.0, SAME, f"horizontal: {_AP_GNSS}"),
-               scale_figure="gps_vel_noise_scale"),
-    MappingRow("gps_vel_noise", None,
+               scale_figure=FIGURES.gps_vel_noise_scale.name),
+    MappingRow(FIGURES.gps_vel_noise.name, None,
                ParameterSpec("EK3_VELD_M_NSE", "m/s", 0.05, 5.0, VERTICAL,
                              f"vertical: {_AP_GNSS}; 1.5 x horizontal as PX4 (vel_var * sq(1.5f))"),
-               scale_figure="gps_vel_noise_scale"),
-    MappingRow("wind_walk",
+               scale_figure=FIGURES.gps_vel_noise_scale.name),
+    MappingRow(FIGURES.wind_walk.name,
                ParameterSpec("EKF2_WIND_NSD", "m/s^2/sqrt(Hz)", 0.0, 1.0, SAME,
                              f"wind variance nsd^2 dt per step ({_PX4_COV})"),
                ParameterSpec("EK3_WIND_P_NSE", "m/s^2", 0.01, 2.0, PER_STEP,

@@ -31,6 +31,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 import pandas as pd
 
+from calib.figures import FIGURES
 from estimators.config import EstimatorConfig
 from estimators.consistency import (
     REVERSED_AIRFLOW_LIMIT,
@@ -57,21 +58,11 @@ ESTIMATORS: dict[str, Callable[..., EstimatorRun]] = {
     "full_state_direct": run_direct,
     "full_state_indirect": run_indirect,
 }
-#: Calibrated figures an estimator does not use, and why (docs/calibration.md, 'From calibration to filter
-#: settings'); the others set what ``config.calibrated.provenance`` says.
-_STAGE1 = "no stage-1 accelerometer update (the accelerometer drives the propagation)"
-_BIAS_STATE = "estimated as a state of the filter"
-_NO_STATE = "no such state in the three-stage estimator"
+#: Calibrated figures an estimator does not use, and why (the ``ignored`` of their rows of
+#: :data:`calib.figures.FIGURES`); the others set what ``config.calibrated.provenance`` says.
 IGNORED_FIGURES: dict[str, dict[str, str]] = {
-    "three_stage": {"gyro_bias_walk": _NO_STATE, "accel_bias_walk": _NO_STATE, "accel_bias_walk_z": _NO_STATE,
-                    "mag_bias_walk": _NO_STATE, "baro_bias_walk": _NO_STATE,
-                    "baro_noise": "the barometer is a low-passed input, not a measurement update",
-                    "sideslip_noise": "no sideslip pseudo-measurement"},
-    "full_state_direct": {"accel_tau": _STAGE1, "accel_axis_noise_density": _STAGE1, "accel_stage1_floor": _STAGE1,
-                          "gyro_bias": _BIAS_STATE, "accel_bias": _BIAS_STATE},
-    "full_state_indirect": {"accel_tau": _STAGE1, "accel_axis_noise_density": _STAGE1,
-                            "accel_stage1_floor": _STAGE1, "gyro_bias": _BIAS_STATE, "accel_bias": _BIAS_STATE},
-}
+    name: {row.name: why for row in FIGURES.values() for estimator, why in row.ignored if estimator == name}
+    for name in ESTIMATORS}
 #: Default estimator selection (all three, paper order).
 DEFAULT_ESTIMATORS = ("three_stage", "full_state_direct", "full_state_indirect")
 #: Leads the warning of a refused finding replayed on request (``allow_untrusted=True``), and of a flagged one.

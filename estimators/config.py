@@ -18,7 +18,19 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field, fields, replace
 
-from calib.figures import SOURCE_TUNED, SOURCE_USER
+from calib.figures import (
+    FIGURES,
+    RULE_AXES,
+    RULE_AXES_PER_STRENGTH,
+    RULE_FACTOR,
+    RULE_NOISE,
+    RULE_NOISE_PER_STRENGTH,
+    RULE_NORMALISER,
+    RULE_VALUE,
+    SOURCE_TUNED,
+    SOURCE_USER,
+    FigureSetting,
+)
 from ingest.errors import InputError
 
 #: Default EKF2_GPS_DELAY of PX4 [ms], used when a log has no such parameter.
@@ -355,25 +367,13 @@ def config_from_calibration(calibration, base: EstimatorConfig | None = None, *,
 
 #: Figures taken as they are (identified as a whole filter setting, or set by the user).
 _TOTAL_SOURCES = (SOURCE_TUNED, SOURCE_USER)
-#: Noise figure -> NoiseConfig field it sets (the measured ones root-sum-squared with the default, see below).
-_NOISE_FIELDS = {
-    "gyro_noise_density": "gyro_noise_rad_s_sqrt_hz", "accel_noise_density": "accel_noise_m_s2_sqrt_hz",
-    "gyro_bias_walk": "gyro_bias_rw_rad_s2_sqrt_hz", "accel_bias_walk": "accel_bias_rw_m_s3_sqrt_hz",
-    "accel_bias_walk_z": "accel_bias_rw_z_m_s3_sqrt_hz", "baro_noise": "baro_sigma_m",
-    "baro_bias_walk": "baro_bias_rw_m_sqrt_s", "airspeed_noise": "airspeed_sigma_m_s",
-    "sideslip_noise": "sideslip_sigma_m_s", "gps_vel_noise": "gps_vel_sigma_default_m_s",
-    "gps_vel_noise_scale": "gps_vel_accuracy_scale", "wind_walk": "wind_rw_m_s_sqrt_s",
-}
-
-#: GPS position scale figure -> the NoiseConfig factors and floors it multiplies.
-_GPS_SCALES = {"gps_pos_noise_scale": ("gps_pos_eph_scale", "gps_pos_sigma_floor_m"),
-               "gps_hgt_noise_scale": ("gps_hgt_epv_scale", "gps_hgt_sigma_floor_m")}
 
 
 def config_from_figures(figures, base: EstimatorConfig | None = None) -> EstimatorConfig:
     """Settings from filter figures (``{name: calib.figures.Figure}``), other settings from ``base``.
 
-    docs/calibration.md, 'From calibration to filter settings':
+    Which setting each figure feeds, and by which rule, is its row of :data:`calib.figures.FIGURES`
+    (docs/calibration.md, 'From calibration to filter settings'):
 
     * a MEASURED noise figure (still segment, Allan, in-flight residual) is the sensor's noise; the filter also
       needs its model error (scale factors, misalignment, vibration, pitot and static-port errors, unmodelled
@@ -382,8 +382,8 @@ def config_from_figures(figures, base: EstimatorConfig | None = None) -> Estimat
       the filter trust a model it cannot trust.
     * a TUNED or USER figure (source ``tuned (innovation likelihood)`` or ``user``) is a whole filter setting and
       is used as it is.
-    * the magnetometer noise [gauss] is divided by the field strength (the filters fuse the field in units of its
-      strength), per axis; the GPS position scale multiplies the receiver-accuracy factors and floors.
+    * the magnetometer figures [gauss] are divided by the field strength (the filters fuse the field in units of
+      its strength), per axis; the GPS scales multiply the receiver-accuracy factors and floors.
     * biases, eq 52 tau and the per-axis stage-1 density go to :class:`CalibratedInputs` (the three-stage
       estimator, which has no bias states).
 
@@ -391,6 +391,8 @@ def config_from_figures(figures, base: EstimatorConfig | None = None) -> Estimat
     """
     config = EstimatorConfig() if base is None else base
     noise, changes, calibrated, provenance = config.noise, {}, {}, []
+    normaliser = FIGURES.mag_field_strength
+    strength = figures[normaliser.name].value if normaliser.name in figures else math.nan
 
     def setting(value, source, default):
         if source in _TOTAL_SOURCES:
@@ -401,55 +403,50 @@ def config_from_figures(figures, base: EstimatorConfig | None = None) -> Estimat
         if not math.isfinite(figure.value):
             provenance.append((name, figure.source, "ignored: not a finite number"))
             continue
-        if name in _NOISE_FIELDS:
-            field_name = _NOISE_FIELDS[name]
-            default = getattr(noise, field_name)
-            if default is None:  # accel_bias_rw_z: the x/y walk unless given
-                default = noise.accel_bias_rw_m_s3_sqrt_hz
-            value, how = setting(figure.value, figure.source, default)
-            changes[field_name] = value
-            provenance.append((name, figure.source, f"noise.{field_name} = {value:.4g} ({how})"))
-        elif name == "mag_noise":
-            strength = figures["mag_field_strength"].value if "mag_field_strength" in figures else math.nan
+        spec = FIGURES[name].setting if name in FIGURES else None
+        rule = spec.rule if spec is not None else None
+        if rule in (RULE_NOISE, RULE_NOISE_PER_STRENGTH):
+            if rule == RULE_NOISE_PER_STRENGTH and not strength > 0:
+                continue  # no provenance line, unlike the per-axis rule: every configuration stays as it was
+            measured = figure.value / strength if rule == RULE_NOISE_PER_STRENGTH else figure.value
+            value, how = setting(measured, figure.source, noise_default(noise, spec))
+            changes[spec.fields[0]] = value
+            provenance.append((name, figure.source, f"noise.{spec.fields[0]} = {value:.4g} ({how})"))
+        elif rule == RULE_AXES_PER_STRENGTH:
             if not strength > 0:
                 provenance.append((name, figure.source, "ignored: no field strength to normalise by"))
                 continue
             axes = figure.axes or (figure.value,) * 3
-            values = tuple(setting(a / strength, figure.source, noise.mag_sigma)[0] for a in axes)
-            changes["mag_sigma_axes"] = values
-            provenance.append((name, figure.source, "noise.mag_sigma_axes = (" + ", ".join(f"{v:.4g}" for v in values)
-                               + f") field units (/ {strength:.4g} gauss, "
+            values = tuple(setting(a / strength, figure.source, noise_default(noise, spec))[0] for a in axes)
+            changes[spec.fields[0]] = values
+            provenance.append((name, figure.source, f"noise.{spec.fields[0]} = ("
+                               + ", ".join(f"{v:.4g}" for v in values)
+                               + f") field units (/ {strength:.4g} {normaliser.unit}, "
                                + ("as is)" if figure.source in _TOTAL_SOURCES else "root-sum-squared with the "
                                                                                    "default)")))
-        elif name == "mag_bias_walk":
-            strength = figures["mag_field_strength"].value if "mag_field_strength" in figures else math.nan
-            if strength > 0:
-                value, how = setting(figure.value / strength, figure.source, noise.mag_bias_rw_sqrt_s)
-                changes["mag_bias_rw_sqrt_s"] = value
-                provenance.append((name, figure.source, f"noise.mag_bias_rw_sqrt_s = {value:.4g} ({how})"))
-        elif name in _GPS_SCALES:
-            for field_name in _GPS_SCALES[name]:
+        elif rule == RULE_FACTOR:
+            for field_name in spec.fields:
                 changes[field_name] = getattr(noise, field_name) * figure.value
-            provenance.append((name, figure.source, f"{' and '.join(_GPS_SCALES[name])} x {figure.value:.4g}"))
-        elif name == "accel_tau":
-            calibrated["accel_tau"] = figure.value
-            provenance.append((name, figure.source, f"three-stage stage-1 body-y variance x {figure.value:.4g}"))
-        elif name == "accel_axis_noise_density" and len(figure.axes) == 3:
-            calibrated["accel_axis_density"] = tuple(figure.axes)
-            provenance.append((name, figure.source, "three-stage stage-1 R per axis (floored by model error)"))
-        elif name == "accel_stage1_floor":
-            calibrated["accel_stage1_floor_m_s2"] = figure.value
-            provenance.append((name, figure.source, f"three-stage stage-1 sigma floor {figure.value:.4g} m/s^2"))
-        elif name in ("gyro_bias", "accel_bias") and len(figure.axes) == 3:
-            calibrated[f"{name}_{'rad_s' if name == 'gyro_bias' else 'm_s2'}"] = tuple(figure.axes)
-            provenance.append((name, figure.source, "removed from the three-stage estimator's inputs"))
-        elif name == "mag_field_strength":
-            provenance.append((name, figure.source, "normalises the magnetometer figures"))
+            provenance.append((name, figure.source, f"{' and '.join(spec.fields)} x {figure.value:.4g}"))
+        elif rule == RULE_VALUE:
+            calibrated[spec.fields[0]] = figure.value
+            provenance.append((name, figure.source, spec.use.format(value=figure.value)))
+        elif rule == RULE_AXES and len(figure.axes) == 3:
+            calibrated[spec.fields[0]] = tuple(figure.axes)
+            provenance.append((name, figure.source, spec.use))
+        elif rule == RULE_NORMALISER:
+            provenance.append((name, figure.source, spec.use))
         else:
             provenance.append((name, figure.source, "ignored: no setting takes it"))
     noise = replace(noise, **changes)
     calibrated_inputs = replace(config.calibrated, **calibrated, provenance=tuple(provenance))
     return replace(config, noise=noise, calibrated=calibrated_inputs)
+
+
+def noise_default(noise: NoiseConfig, setting: FigureSetting) -> float:
+    """The value of a noise rule's setting in ``noise`` that a measured figure is combined with: its first default
+    field that is set (``accel_bias_rw_z``: the x/y walk unless given)."""
+    return next(value for value in (getattr(noise, name) for name in setting.defaults) if value is not None)
 
 
 def validate_config(config: EstimatorConfig) -> None:

@@ -26,15 +26,27 @@ import math
 import time
 from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass
 
 import numpy as np
 
 from calib.calibration import Calibration
-from calib.figures import SOURCE_TUNED, Figure, TuneResult, rms
+from calib.figures import (
+    FIGURES,
+    RULE_AXES_PER_STRENGTH,
+    RULE_FACTOR,
+    RULE_NOISE,
+    RULE_NOISE_PER_STRENGTH,
+    RULE_VALUE,
+    SOURCE_TUNED,
+    Figure,
+    FigureRow,
+    FigureSetting,
+    TuneResult,
+    rms,
+)
 from calib.filter_figures import calibration_figures
 from estimators.api import DEFAULT_ESTIMATORS, estimator_function, parse_estimator_names
-from estimators.config import EstimatorConfig, config_from_figures
+from estimators.config import EstimatorConfig, config_from_figures, noise_default
 from estimators.consistency import (
     MIN_UPDATES,
     NIS_WARNING_RANGE,
@@ -64,105 +76,65 @@ MATCH_ITERATIONS = 3
 NIS_START_TOLERANCE = 1.25
 
 
-@dataclass(frozen=True)
-class Knob:
-    """One identified figure.
-
-    Attributes
-    ----------
-    figure : str
-        Name in :data:`calib.figures.FIGURES`.
-    lower, upper : float
-        Search bounds in the figure's unit.
-    channel : str or None
-        Diagnostics channel whose mean NIS the covariance-matching step uses (measurement figures only): a sensor
-        (``"baro"``) or ``"sensor.c1c2"`` for some of its components (``"gps_pos.ne"``).
-    estimators : tuple of str
-        Estimators that use the figure.
-    needs : str or None
-        Sensor-plan attribute that must be true (``has_airspeed``, ``has_mag``, ...).
-    """
-
-    figure: str
-    lower: float
-    upper: float
-    channel: str | None = None
-    estimators: tuple[str, ...] = DEFAULT_ESTIMATORS
-    needs: str | None = None
-
-
-_FULL = ("full_state_direct", "full_state_indirect")
-#: Every identifiable figure; bounds span the low-cost sensors of docs/calibration.md, 'Noise identification'.
-#: The three-stage filter's gyro, airspeed and wind figures are not identified: there they drive stages whose
-#: errors the next stage takes as exact inputs, so the summed innovation likelihood of the cascade is not a joint
-#: one and rises when the error is moved into a stage with few innovations (its heading, measured: 7.7 -> 21 deg
-#: in gusty air with every channel's NIS inside 0.2 .. 3).
-KNOBS = (
-    Knob("baro_noise", 0.02, 20.0, "baro", _FULL, "has_baro"),
-    Knob("mag_noise", 2e-4, 0.3, "mag", needs="has_mag"),
-    Knob("airspeed_noise", 0.02, 5.0, "airspeed", _FULL, "has_airspeed"),
-    # the zero-sideslip pseudo-measurement's error is the aircraft's real sideslip (turns, gusts before the
-    # weathercock settles), correlated over a turn: like the GPS position the likelihood would shrink it without
-    # end, so it is floored at 0.2 m/s, about 1 deg of sideslip at 12 m/s (a well-coordinated small fixed wing)
-    Knob("sideslip_noise", 0.2, 3.0, "sideslip", _FULL, "has_airspeed"),
-    # GPS position error is correlated over minutes: short-term innovations would shrink its figure far below the
-    # receiver's own accuracy estimate, which is the floor (the scale only inflates it, e.g. for multipath).
-    Knob("gps_pos_noise_scale", 1.0, 5.0, "gps_pos.ne", needs="has_gps"),
-    Knob("gps_hgt_noise_scale", 1.0, 5.0, "gps_pos.d", needs="has_gps"),
-    Knob("gps_vel_noise_scale", 0.1, 10.0, "gps_vel", needs="has_gps"),
-    Knob("accel_stage1_floor", 0.02, 2.0, "accel", ("three_stage",)),
-    Knob("accel_tau", 0.1, 100.0, None, ("three_stage",)),
-    Knob("gyro_noise_density", 1e-5, 3e-2, None, _FULL),
-    Knob("accel_noise_density", 1e-4, 0.5, None, _FULL),
-    Knob("gyro_bias_walk", 1e-7, 1e-2, None, _FULL),
-    Knob("accel_bias_walk", 1e-5, 3e-3, None, _FULL, "has_gps"),
-    Knob("accel_bias_walk_z", 1e-5, 0.1, None, _FULL, "has_gps"),
-    Knob("wind_walk", 1e-3, 5.0, None, _FULL, "has_airspeed"),
-    # at most ArduPilot EKF3's EK3_MAGB_P_NSE range top (0.01 gauss/s): faster, the bias follows a disturbance
-    Knob("mag_bias_walk", 1e-7, 0.01, None, _FULL, "has_mag"),
-    Knob("baro_bias_walk", 1e-4, 1.0, None, _FULL, "has_baro"),
-)
+#: The search vector: every figure of :data:`calib.figures.FIGURES` with an :class:`~calib.figures.Identification`
+#: (its bounds, NIS channel, estimators and sensor needs), in the table's order, which the pattern search follows.
+KNOBS: tuple[FigureRow, ...] = tuple(row for row in FIGURES.values() if row.identification is not None)
+#: Start of a figure whose setting the configuration leaves to the estimator (None there): the estimator's default.
+_UNSET_STARTS = {FIGURES.accel_stage1_floor.name: ThreeStageOptions().accel_sigma_floor_m_s2}
+#: Rules whose figure is in gauss, its setting in units of the field strength.
+_PER_STRENGTH = (RULE_NOISE_PER_STRENGTH, RULE_AXES_PER_STRENGTH)
 
 
 def start_values(config: EstimatorConfig, strength_gauss: float) -> dict[str, float]:
-    """The value of every knob's figure in ``config`` (the filter setting it stands for)."""
-    noise, calibrated = config.noise, config.calibrated
-    mag_axes = noise.mag_sigma_axes or (noise.mag_sigma,) * 3
-    return {
-        "baro_noise": noise.baro_sigma_m, "airspeed_noise": noise.airspeed_sigma_m_s,
-        "mag_noise": rms(mag_axes) * strength_gauss, "sideslip_noise": noise.sideslip_sigma_m_s,
-        "gps_pos_noise_scale": 1.0, "gps_hgt_noise_scale": 1.0, "gps_vel_noise_scale": noise.gps_vel_accuracy_scale,
-        "accel_stage1_floor": (calibrated.accel_stage1_floor_m_s2 if calibrated.accel_stage1_floor_m_s2 is not None
-                               else ThreeStageOptions().accel_sigma_floor_m_s2),
-        "accel_tau": calibrated.accel_tau, "gyro_noise_density": noise.gyro_noise_rad_s_sqrt_hz,
-        "accel_noise_density": noise.accel_noise_m_s2_sqrt_hz, "gyro_bias_walk": noise.gyro_bias_rw_rad_s2_sqrt_hz,
-        "accel_bias_walk": noise.accel_bias_rw_m_s3_sqrt_hz,
-        "accel_bias_walk_z": (noise.accel_bias_rw_z_m_s3_sqrt_hz if noise.accel_bias_rw_z_m_s3_sqrt_hz is not None
-                              else noise.accel_bias_rw_m_s3_sqrt_hz),
-        "wind_walk": noise.wind_rw_m_s_sqrt_s, "mag_bias_walk": noise.mag_bias_rw_sqrt_s * strength_gauss,
-        "baro_bias_walk": noise.baro_bias_rw_m_sqrt_s,
-    }
+    """The value of every knob's figure in ``config`` (the filter setting it stands for, its table rule inverted;
+    ``strength_gauss`` the field strength the magnetometer settings are in units of)."""
+    return {row.name: _figure_value(row, config, strength_gauss) for row in KNOBS}
 
 
-def knobs_for(estimator: str, plan: SensorPlan) -> tuple[Knob, ...]:
+def _figure_value(row: FigureRow, config: EstimatorConfig, strength_gauss: float) -> float:
+    setting = row.setting
+    if setting.rule == RULE_NOISE:
+        return noise_default(config.noise, setting)
+    if setting.rule == RULE_NOISE_PER_STRENGTH:
+        return noise_default(config.noise, setting) * strength_gauss
+    if setting.rule == RULE_AXES_PER_STRENGTH:
+        return rms(_noise_axes(config, setting)) * strength_gauss
+    if setting.rule == RULE_FACTOR:
+        return 1.0  # the settings it multiplies hold the factor already
+    if setting.rule == RULE_VALUE:
+        value = getattr(config.calibrated, setting.fields[0])
+        return _UNSET_STARTS[row.name] if value is None else value
+    raise ValueError(f"figure {row.name!r}: no inverse of rule {setting.rule!r} to start an identification from")
+
+
+def _noise_axes(config: EstimatorConfig, setting: FigureSetting) -> tuple[float, ...]:
+    """The per-axis setting of a per-axis rule in ``config`` (its default on every axis when not set)."""
+    return getattr(config.noise, setting.fields[0]) or (noise_default(config.noise, setting),) * 3
+
+
+def knobs_for(estimator: str, plan: SensorPlan) -> tuple[FigureRow, ...]:
     """The knobs ``estimator`` uses on a log with sensor plan ``plan``."""
-    return tuple(k for k in KNOBS if estimator in k.estimators and (k.needs is None or getattr(plan, k.needs)))
+    return tuple(k for k in KNOBS if estimator in k.identification.estimators
+                 and (k.identification.needs is None or getattr(plan, k.identification.needs)))
 
 
-def tuned_figures(base: dict[str, Figure], values: dict[str, float], start_mag_axes: tuple[float, ...],
+def tuned_figures(base: dict[str, Figure], values: dict[str, float], start: EstimatorConfig,
                   strength_gauss: float) -> dict[str, Figure]:
-    """``base`` with every knob value as a tuned figure (magnetometer axes scaled together, keeping their ratio;
-    the field strength recorded so the figures convert back exactly)."""
+    """``base`` with every knob value as a tuned figure (the axes of a per-axis figure scaled together, keeping
+    their ratio in ``start``, the configuration the search started from; the field strength recorded so the
+    figures convert back exactly)."""
     figures = dict(base)
     for name, value in values.items():
-        axes = ()
-        if name == "mag_noise":
-            ratio = value / (rms(start_mag_axes) * strength_gauss)
-            axes = tuple(a * strength_gauss * ratio for a in start_mag_axes)
+        setting, axes = FIGURES[name].setting, ()
+        if setting.rule == RULE_AXES_PER_STRENGTH:
+            start_axes = _noise_axes(start, setting)
+            ratio = value / (rms(start_axes) * strength_gauss)
+            axes = tuple(a * strength_gauss * ratio for a in start_axes)
         figures[name] = Figure(name, value, SOURCE_TUNED, axes=axes)
-    if "mag_noise" in values or "mag_bias_walk" in values:
-        figures["mag_field_strength"] = Figure("mag_field_strength", strength_gauss, SOURCE_TUNED,
-                                               note="median |m| of the log (the replay's normalisation)")
+    if any(FIGURES[name].setting.rule in _PER_STRENGTH for name in values):
+        strength = FIGURES.mag_field_strength.name
+        figures[strength] = Figure(strength, strength_gauss, SOURCE_TUNED,
+                                   note="median |m| of the log (the replay's normalisation)")
     return figures
 
 
@@ -192,12 +164,10 @@ def tune_estimator(log: FlightLog, cal: Calibration, estimator: str, *, budget: 
     strength = inputs.mag_strength_gauss if math.isfinite(inputs.mag_strength_gauss) else 1.0
     knobs = knobs_for(estimator, inputs.plan)
     values = start_values(start_config, strength)
-    start = {k.figure: values[k.figure] for k in knobs}
-    start = {name: min(max(v, k.lower), k.upper) for (name, v), k in zip(start.items(), knobs, strict=True)}
-    mag_axes = start_config.noise.mag_sigma_axes or (start_config.noise.mag_sigma,) * 3
+    start = {k.name: min(max(values[k.name], k.identification.lower), k.identification.upper) for k in knobs}
 
     def figures_of(values):
-        return tuned_figures(base_figures, values, mag_axes, strength)
+        return tuned_figures(base_figures, values, start_config, strength)
 
     def replay(values) -> tuple[float, EstimatorRun]:
         config = config_from_figures(figures_of(values))
@@ -244,10 +214,11 @@ def tune_estimator(log: FlightLog, cal: Calibration, estimator: str, *, budget: 
             break
         matched = dict(best)
         for k in knobs:
-            nis = _mean_nis(best_run, k.channel) if k.channel else math.nan
+            search = k.identification
+            nis = _mean_nis(best_run, search.channel) if search.channel else math.nan
             if math.isfinite(nis):
                 factor = min(max(math.sqrt(nis), 1.0 / MATCH_FACTOR_LIMIT), MATCH_FACTOR_LIMIT)
-                matched[k.figure] = min(max(best[k.figure] * factor, k.lower), k.upper)
+                matched[k.name] = min(max(best[k.name] * factor, search.lower), search.upper)
         if matched == best:
             break
         ll, run = evaluate(matched)
@@ -262,12 +233,14 @@ def tune_estimator(log: FlightLog, cal: Calibration, estimator: str, *, budget: 
     for step in STEPS_DECADES:
         improved_any = False
         for k in knobs:
+            search = k.identification
             for direction in (+1.0, -1.0):
                 moved = False
                 while spent < budget:  # keep going while the likelihood rises
                     candidate = dict(best)
-                    candidate[k.figure] = min(max(best[k.figure] * 10.0 ** (direction * step), k.lower), k.upper)
-                    if candidate[k.figure] == best[k.figure]:
+                    candidate[k.name] = min(max(best[k.name] * 10.0 ** (direction * step), search.lower),
+                                            search.upper)
+                    if candidate[k.name] == best[k.name]:
                         break
                     ll, run = evaluate(candidate)
                     spent += 1
@@ -284,11 +257,10 @@ def tune_estimator(log: FlightLog, cal: Calibration, estimator: str, *, budget: 
             break
         if not improved_any:
             continue
-    for k in knobs:
-        if best[k.figure] in (k.lower, k.upper):
-            notes.append(f"{k.figure} at its {'lower' if best[k.figure] == k.lower else 'upper'} bound "
-                         f"{best[k.figure]:.3g}")
-    bounds = {k.figure: (k.lower, k.upper) for k in knobs}
+    bounds = {k.name: (k.identification.lower, k.identification.upper) for k in knobs}
+    for name, (lower, upper) in bounds.items():
+        if best[name] in (lower, upper):
+            notes.append(f"{name} at its {'lower' if best[name] == lower else 'upper'} bound {best[name]:.3g}")
     return TuneResult(estimator=estimator, figures=figures_of(best), start=start, bounds=bounds,
                       log_likelihood_trace=tuple(trace), n_replays=spent, nis_before=before,
                       nis_after=channel_consistency(best_run.diagnostics), wall_s=time.perf_counter() - started,

@@ -59,6 +59,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.special import chdtrc, chdtri
 
+from calib.figures import FIGURES
 from estimators.config import EstimatorConfig
 from estimators.core import recorder
 from estimators.core.recorder import C_DIAG, C_OUTPUTS
@@ -407,7 +408,7 @@ def run(flight_log: FlightLog, inputs: ReplayInputs, config: EstimatorConfig, *,
         "stage3_start_s": float(o[navigating, O_TIME][0]) if navigating.any() else None,
         "heading_resets": int(counters[C_HEADING_RESETS]),
         "accel_update_rate_hz": options.accel_update_rate_hz,
-        "accel_tau": config.calibrated.accel_tau,
+        FIGURES.accel_tau.name: config.calibrated.accel_tau,
         "accel_variance_m2_s4": setup.params.accel_var.tolist(),
         "accel_bias_removed_m_s2": (None if config.calibrated.accel_bias_m_s2 is None
                                     else list(config.calibrated.accel_bias_m_s2)),
