@@ -39,7 +39,7 @@ from estimators.config import (
 )
 from estimators.inputs.records import SensorPlan
 from estimators.tuning import KNOBS, start_values, tuned_figures
-from ingest.ulog_reader import load_flight_log
+from ingest.log_formats import load_flight_log
 
 SAMPLE_LOG = Path(__file__).resolve().parents[1] / "sample_logs" / "paper.ulg"
 #: A field strength for the magnetometer figures [gauss].

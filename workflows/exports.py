@@ -12,6 +12,7 @@ from calib.export import calibration_text, write_calibration
 from calib.parameter_export import (
     DEFAULT_PREDICT_PERIOD_S,
     EKF3_TARGET_DT_S,
+    AutopilotParam,
     ardupilot_parameters,
     ardupilot_parm_text,
     export_figures,
@@ -21,7 +22,8 @@ from calib.parameter_export import (
 )
 from ingest.files import atomic_write_text
 
-__all__ = ["ardupilot_text", "calibration_text", "px4_text", "write_calibration", "write_calibration_files"]
+__all__ = ["ardupilot_parameter_set", "ardupilot_text", "calibration_text", "px4_parameter_set", "px4_text",
+           "write_calibration", "write_calibration_files"]
 
 
 def _origin(cal: Calibration) -> str:
@@ -32,21 +34,27 @@ def _imu_rate_hz(cal: Calibration) -> float | None:
     return cal.sensors["gyroscope"].fir.fs_hz if "gyroscope" in cal.sensors else None
 
 
-def px4_text(cal: Calibration, log_parameters: dict) -> str:
-    """EKF2 noise parameters of ``cal`` as a QGroundControl ``.params`` text; the prediction period is the log's
+def px4_parameter_set(cal: Calibration, log_parameters: dict) -> tuple[list[AutopilotParam], str]:
+    """EKF2 noise parameters of ``cal`` and their file header; the prediction period is the log's
     ``EKF2_PREDICT_US`` (else PX4's default 10 ms)."""
     figures = export_figures(cal)
     predict_us = log_parameters.get("EKF2_PREDICT_US")
     period_s = predict_us / 1e6 if predict_us else DEFAULT_PREDICT_PERIOD_S
     header = "\n".join([f"EKF2 noise parameters {_origin(cal)}", f"EKF2 prediction period {period_s * 1e3:g} ms",
                         *unwritten_notes(figures, "px4")])
-    return px4_params_text(px4_parameters(figures, period_s, _imu_rate_hz(cal)), header=header)
+    return px4_parameters(figures, period_s, _imu_rate_hz(cal)), header
 
 
-def ardupilot_text(cal: Calibration, log_parameters: dict) -> str:
-    """EKF3 noise parameters of ``cal`` as an ArduPilot ``.parm`` text. An ArduPilot log's loop rate
-    (``SCHED_LOOP_RATE``) gives EKF3's step, max(1 / loop rate, 12 ms); a PX4 log says nothing of it: EKF3's target
-    step (12 ms; longer below 83 Hz loops, said in the header)."""
+def px4_text(cal: Calibration, log_parameters: dict) -> str:
+    """:func:`px4_parameter_set` as a QGroundControl ``.params`` text."""
+    params, header = px4_parameter_set(cal, log_parameters)
+    return px4_params_text(params, header=header)
+
+
+def ardupilot_parameter_set(cal: Calibration, log_parameters: dict) -> tuple[list[AutopilotParam], str]:
+    """EKF3 noise parameters of ``cal`` and their file header. An ArduPilot log's loop rate (``SCHED_LOOP_RATE``)
+    gives EKF3's step, max(1 / loop rate, 12 ms); a PX4 log says nothing of it: EKF3's target step (12 ms; longer
+    below 83 Hz loops, said in the header)."""
     figures = export_figures(cal)
     loop_hz = log_parameters.get("SCHED_LOOP_RATE", 0.0)
     period_s = max(EKF3_TARGET_DT_S, 1.0 / loop_hz) if loop_hz > 0 else EKF3_TARGET_DT_S
@@ -56,7 +64,13 @@ def ardupilot_text(cal: Calibration, log_parameters: dict) -> str:
     header = "\n".join([f"EKF3 noise parameters {_origin(cal)}",
                         f"EKF3 prediction period {period_s * 1e3:g} ms ({period_note})",
                         *unwritten_notes(figures, "ardupilot")])
-    return ardupilot_parm_text(ardupilot_parameters(figures, period_s, _imu_rate_hz(cal)), header=header)
+    return ardupilot_parameters(figures, period_s, _imu_rate_hz(cal)), header
+
+
+def ardupilot_text(cal: Calibration, log_parameters: dict) -> str:
+    """:func:`ardupilot_parameter_set` as an ArduPilot ``.parm`` text."""
+    params, header = ardupilot_parameter_set(cal, log_parameters)
+    return ardupilot_parm_text(params, header=header)
 
 
 def write_calibration_files(cal: Calibration, log_parameters: dict, calib_path: str | os.PathLike | None = None, *,
