@@ -13,6 +13,12 @@ of the calibration's figures, so the start IS the ``--calib`` replay) and is sea
    outside), no more resets, and on a fixed wing no more epochs with the estimated air flowing backwards through
    the airframe than at the start (at most 5 %).
 
+Every step is judged by time-split validation: the updates of even :data:`VALIDATION_BLOCK_S` blocks of the flight
+choose, those of the odd blocks confirm, and a candidate is kept only when it raises the likelihood of both (a
+gust or a disturbance in one part of the flight cannot pull a figure that the rest of it contradicts). Last, every
+figure moved from its start goes back to it unless the move raised the held-out likelihood by
+:data:`EVIDENCE_NATS` (where the evidence is weak, the calibrated or datasheet value stays).
+
 The likelihood is :func:`estimators.consistency.log_likelihood` (normalised innovations clipped at 5 sigma).
 Each evaluation rebuilds the replay inputs (0.1 s for 15 minutes of flight: measurement variances live in the
 event table) and runs the compiled kernel, which releases the GIL, so the estimators are identified in parallel
@@ -26,6 +32,7 @@ import math
 import time
 from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -138,6 +145,180 @@ def tuned_figures(base: dict[str, Figure], values: dict[str, float], start: Esti
     return figures
 
 
+#: Length of the alternating blocks of the time-split validation [s]: even blocks choose, odd blocks confirm.
+VALIDATION_BLOCK_S = 60.0
+#: A figure moved from its start must raise the validation log-likelihood by at least this much [nats] (a
+#: likelihood ratio of e^2, "positive evidence"), else it falls back to its start.
+EVIDENCE_NATS = 2.0
+
+
+@dataclass(frozen=True)
+class _Candidate:
+    """A set of knob values, its replay and its log-likelihoods on the choosing and the confirming blocks (-inf
+    for a replay that is not :meth:`_Identification.trusted`)."""
+
+    values: dict[str, float]
+    run: EstimatorRun
+    choose_ll: float
+    confirm_ll: float
+
+    def beats(self, other: _Candidate) -> bool:
+        """Better on the blocks it was chosen on AND on the held-out ones."""
+        return self.choose_ll > other.choose_ll and self.confirm_ll > other.confirm_ll
+
+    @property
+    def total_ll(self) -> float:
+        return self.choose_ll + self.confirm_ll
+
+
+class _Identification:
+    """One estimator's identification problem on one log: the start, the replay of a candidate, the trust checks
+    and the replay budget (see the module docstring)."""
+
+    def __init__(self, log: FlightLog, cal: Calibration, estimator: str, budget: int, heading: str,
+                 sun_observations):
+        self.log, self.estimator, self.budget = log, estimator, budget
+        self.heading, self.sun_observations = heading, sun_observations
+        self.run_function = estimator_function(estimator)
+        self.base_figures = calibration_figures(cal)
+        self.start_config = config_from_figures(self.base_figures)
+        inputs = build_replay_inputs(log, self.start_config, rate_hz=TUNE_OUTPUT_RATE_HZ, heading=heading,
+                                     sun_observations=sun_observations)
+        self.strength = inputs.mag_strength_gauss if math.isfinite(inputs.mag_strength_gauss) else 1.0
+        self.knobs = knobs_for(estimator, inputs.plan)
+        values = start_values(self.start_config, self.strength)
+        self.start = {k.name: min(max(values[k.name], k.identification.lower), k.identification.upper)
+                      for k in self.knobs}
+        self.spent, self.trace, self.notes = 0, [], []
+        self.check_airflow = inputs.plan.fixed_wing and inputs.plan.has_airspeed
+        first = self._replay(self.start)
+        self.nis_before = channel_consistency(first.diagnostics)
+        # A channel may not leave the warning range further than it started: above it the filter trusts a sensor
+        # too much (or diverges), below it the sensor is in effect ignored (its figure inflated until the others
+        # explain everything: a magnetometer at 0.3 gauss leaves the heading to drift).
+        self.limits = {c.channel: (min(NIS_WARNING_RANGE[0], c.mean_nis / NIS_START_TOLERANCE),
+                                   max(NIS_WARNING_RANGE[1], c.mean_nis * NIS_START_TOLERANCE))
+                       for c in self.nis_before}
+        self.start_resets = first.report.resets + first.report.gps_resets
+        self.airflow_limit = (max(REVERSED_AIRFLOW_LIMIT, _reversed_share(first)) if self.check_airflow
+                              else math.inf)
+        self.first = self._scored(self.start, first, judged=False)
+        self.trace.append(self.first.total_ll)
+
+    def figures_of(self, values: dict[str, float]) -> dict[str, Figure]:
+        return tuned_figures(self.base_figures, values, self.start_config, self.strength)
+
+    def _replay(self, values: dict[str, float]) -> EstimatorRun:
+        config = config_from_figures(self.figures_of(values))
+        inputs = build_replay_inputs(self.log, config, rate_hz=TUNE_OUTPUT_RATE_HZ, heading=self.heading,
+                                     sun_observations=self.sun_observations)
+        self.spent += 1
+        return self.run_function(self.log, inputs, config)
+
+    def _scored(self, values: dict[str, float], run: EstimatorRun, *, judged: bool = True) -> _Candidate:
+        """``run`` of ``values`` scored (the start replay is not ``judged``: it sets the limits)."""
+        diagnostics = run.diagnostics
+        if judged and not self.trusted(run):
+            return _Candidate(values, run, -math.inf, -math.inf)
+        time_s = diagnostics["time_s"].to_numpy(dtype=float)
+        confirming = (np.floor((time_s - self.log.meta.start_time_s) / VALIDATION_BLOCK_S) % 2) == 1
+        return _Candidate(values, run, log_likelihood(diagnostics[~confirming]),
+                          log_likelihood(diagnostics[confirming]))
+
+    def evaluate(self, values: dict[str, float]) -> _Candidate:
+        """Replay ``values`` (one replay of the budget) and score it."""
+        return self._scored(values, self._replay(values))
+
+    @property
+    def exhausted(self) -> bool:
+        return self.spent >= self.budget
+
+    def trusted(self, run: EstimatorRun) -> bool:
+        """No channel more inconsistent than the warning limit (or than at the start), no more resets and no
+        mirrored wind (air flowing backwards through the airframe fits the airspeed and GPS innovations as well
+        as the true wind: the likelihood cannot see it); the clipped likelihood alone would also let a diverging
+        channel pay only a fixed price per update."""
+        if run.report.resets + run.report.gps_resets > self.start_resets:
+            return False
+        if self.check_airflow and _reversed_share(run) > self.airflow_limit:
+            return False
+        for c in channel_consistency(run.diagnostics):
+            low, high = self.limits.get(c.channel, NIS_WARNING_RANGE)
+            if c.n_updates >= MIN_UPDATES and not low <= c.mean_nis <= high:
+                return False
+        return True
+
+    def keep(self, best: _Candidate, candidate: _Candidate) -> _Candidate:
+        """The better of the two (``candidate`` only when it :meth:`~_Candidate.beats` ``best``), traced."""
+        kept = candidate if candidate.beats(best) else best
+        self.trace.append(kept.total_ll)
+        return kept
+
+
+def _match_covariances(problem: _Identification, best: _Candidate) -> _Candidate:
+    """Up to :data:`MATCH_ITERATIONS` covariance-matching steps on the measurement figures: each sigma times
+    ``sqrt(mean NIS)`` of its channel (clipped to :data:`MATCH_FACTOR_LIMIT`), while that pays."""
+    for _ in range(MATCH_ITERATIONS):
+        if problem.exhausted:
+            break
+        matched = dict(best.values)
+        for k in problem.knobs:
+            search = k.identification
+            nis = _mean_nis(best.run, search.channel) if search.channel else math.nan
+            if math.isfinite(nis):
+                factor = min(max(math.sqrt(nis), 1.0 / MATCH_FACTOR_LIMIT), MATCH_FACTOR_LIMIT)
+                matched[k.name] = min(max(best.values[k.name] * factor, search.lower), search.upper)
+        if matched == best.values:
+            break
+        kept = problem.keep(best, problem.evaluate(matched))
+        if kept is best:
+            break
+        best = kept
+    return best
+
+
+def _pattern_search(problem: _Identification, best: _Candidate) -> _Candidate:
+    """Coordinate pattern search in log10: each figure up and down by a step of :data:`STEPS_DECADES`, continuing
+    in a direction while it pays, until the budget is spent."""
+    for step in STEPS_DECADES:
+        for k in problem.knobs:
+            search = k.identification
+            moved = False
+            for direction in (+1.0, -1.0):
+                while not problem.exhausted:  # keep going while the candidate beats the best
+                    candidate = dict(best.values)
+                    candidate[k.name] = min(max(best.values[k.name] * 10.0 ** (direction * step), search.lower),
+                                            search.upper)
+                    if candidate[k.name] == best.values[k.name]:
+                        break
+                    kept = problem.keep(best, problem.evaluate(candidate))
+                    if kept is best:
+                        break
+                    best, moved = kept, True
+                if moved:
+                    break
+        if problem.exhausted:
+            problem.notes.append(f"replay budget of {problem.budget} spent at a step of {step:g} decade")
+            break
+    return best
+
+
+def _fall_back_where_weak(problem: _Identification, best: _Candidate) -> _Candidate:
+    """Every figure moved from its start goes back to it unless the move raised the held-out blocks' likelihood by
+    :data:`EVIDENCE_NATS` (one replay each, beyond the budget: the check is what makes the result trustworthy)."""
+    for k in problem.knobs:
+        if best.values[k.name] == problem.start[k.name]:
+            continue
+        reverted = problem.evaluate({**best.values, k.name: problem.start[k.name]})
+        if reverted.confirm_ll > best.confirm_ll - EVIDENCE_NATS and math.isfinite(reverted.confirm_ll):
+            problem.notes.append(f"{k.name} kept at its start {problem.start[k.name]:.3g}: the identified "
+                                 f"{best.values[k.name]:.3g} raised the held-out likelihood by "
+                                 f"{best.confirm_ll - reverted.confirm_ll:.2f} < {EVIDENCE_NATS:g} nats")
+            best = reverted
+        problem.trace.append(best.total_ll)
+    return best
+
+
 def tune_estimator(log: FlightLog, cal: Calibration, estimator: str, *, budget: int = DEFAULT_BUDGET,
                    heading: str = "mag", sun_observations=None) -> TuneResult:
     """Identify the noise figures of one estimator on ``log``, starting from ``cal``'s (see the module docstring).
@@ -151,120 +332,24 @@ def tune_estimator(log: FlightLog, cal: Calibration, estimator: str, *, budget: 
     estimator : str
         Registry name.
     budget : int
-        Replays to spend (>= 2).
+        Replays to spend on the search (>= 2; the fall-back check adds one per moved figure).
     heading, sun_observations
         As :func:`estimators.api.run_estimators`.
     """
     started = time.perf_counter()
-    run_function = estimator_function(estimator)
-    base_figures = calibration_figures(cal)
-    start_config = config_from_figures(base_figures)
-    inputs = build_replay_inputs(log, start_config, rate_hz=TUNE_OUTPUT_RATE_HZ, heading=heading,
-                                 sun_observations=sun_observations)
-    strength = inputs.mag_strength_gauss if math.isfinite(inputs.mag_strength_gauss) else 1.0
-    knobs = knobs_for(estimator, inputs.plan)
-    values = start_values(start_config, strength)
-    start = {k.name: min(max(values[k.name], k.identification.lower), k.identification.upper) for k in knobs}
-
-    def figures_of(values):
-        return tuned_figures(base_figures, values, start_config, strength)
-
-    def replay(values) -> tuple[float, EstimatorRun]:
-        config = config_from_figures(figures_of(values))
-        run_inputs = build_replay_inputs(log, config, rate_hz=TUNE_OUTPUT_RATE_HZ, heading=heading,
-                                         sun_observations=sun_observations)
-        run = run_function(log, run_inputs, config)
-        return log_likelihood(run.diagnostics), run
-
-    best_ll, best_run = replay(start)
-    best, trace, spent, notes = dict(start), [best_ll], 1, []
-    before = channel_consistency(best_run.diagnostics)
-    # A channel may not leave the warning range further than it started: above it the filter trusts a sensor
-    # too much (or diverges), below it the sensor is in effect ignored (its figure inflated until the others
-    # explain everything: a magnetometer at 0.3 gauss leaves the heading to drift).
-    limits = {c.channel: (min(NIS_WARNING_RANGE[0], c.mean_nis / NIS_START_TOLERANCE),
-                          max(NIS_WARNING_RANGE[1], c.mean_nis * NIS_START_TOLERANCE)) for c in before}
-    start_resets = best_run.report.resets + best_run.report.gps_resets
-
-    check_airflow = inputs.plan.fixed_wing and inputs.plan.has_airspeed
-    airflow_limit = max(REVERSED_AIRFLOW_LIMIT, _reversed_share(best_run)) if check_airflow else math.inf
-
-    def feasible(run) -> bool:
-        """No channel more inconsistent than the warning limit (or than at the start), no more resets and no
-        mirrored wind (air flowing backwards through the airframe fits the airspeed and GPS innovations as well
-        as the true wind: the likelihood cannot see it); the clipped likelihood alone would also let a diverging
-        channel pay only a fixed price per update."""
-        if run.report.resets + run.report.gps_resets > start_resets:
-            return False
-        if check_airflow and _reversed_share(run) > airflow_limit:
-            return False
-        for c in channel_consistency(run.diagnostics):
-            low, high = limits.get(c.channel, NIS_WARNING_RANGE)
-            if c.n_updates >= MIN_UPDATES and not low <= c.mean_nis <= high:
-                return False
-        return True
-
-    def evaluate(values):
-        ll, run = replay(values)
-        return (ll if feasible(run) else -math.inf), run
-
-    # 1. covariance matching on the measurement figures (repeated while it pays)
-    for _ in range(MATCH_ITERATIONS):
-        if spent >= budget:
-            break
-        matched = dict(best)
-        for k in knobs:
-            search = k.identification
-            nis = _mean_nis(best_run, search.channel) if search.channel else math.nan
-            if math.isfinite(nis):
-                factor = min(max(math.sqrt(nis), 1.0 / MATCH_FACTOR_LIMIT), MATCH_FACTOR_LIMIT)
-                matched[k.name] = min(max(best[k.name] * factor, search.lower), search.upper)
-        if matched == best:
-            break
-        ll, run = evaluate(matched)
-        spent += 1
-        if ll <= best_ll:
-            trace.append(best_ll)
-            break
-        best_ll, best, best_run = ll, matched, run
-        trace.append(best_ll)
-
-    # 2. coordinate pattern search in log10
-    for step in STEPS_DECADES:
-        improved_any = False
-        for k in knobs:
-            search = k.identification
-            for direction in (+1.0, -1.0):
-                moved = False
-                while spent < budget:  # keep going while the likelihood rises
-                    candidate = dict(best)
-                    candidate[k.name] = min(max(best[k.name] * 10.0 ** (direction * step), search.lower),
-                                            search.upper)
-                    if candidate[k.name] == best[k.name]:
-                        break
-                    ll, run = evaluate(candidate)
-                    spent += 1
-                    if ll <= best_ll:
-                        trace.append(best_ll)
-                        break
-                    best_ll, best, best_run, moved = ll, candidate, run, True
-                    trace.append(best_ll)
-                if moved:
-                    improved_any = True
-                    break
-        if spent >= budget:
-            notes.append(f"replay budget of {budget} spent at a step of {step:g} decade")
-            break
-        if not improved_any:
-            continue
-    bounds = {k.name: (k.identification.lower, k.identification.upper) for k in knobs}
+    problem = _Identification(log, cal, estimator, budget, heading, sun_observations)
+    best = _fall_back_where_weak(problem, _pattern_search(problem, _match_covariances(problem, problem.first)))
+    problem.notes.append(f"held-out ({VALIDATION_BLOCK_S:g}-s odd blocks) log-likelihood {problem.first.confirm_ll:.6g}"
+                         f" -> {best.confirm_ll:.6g}")
+    bounds = {k.name: (k.identification.lower, k.identification.upper) for k in problem.knobs}
     for name, (lower, upper) in bounds.items():
-        if best[name] in (lower, upper):
-            notes.append(f"{name} at its {'lower' if best[name] == lower else 'upper'} bound {best[name]:.3g}")
-    return TuneResult(estimator=estimator, figures=figures_of(best), start=start, bounds=bounds,
-                      log_likelihood_trace=tuple(trace), n_replays=spent, nis_before=before,
-                      nis_after=channel_consistency(best_run.diagnostics), wall_s=time.perf_counter() - started,
-                      notes=tuple(notes))
+        if best.values[name] in (lower, upper):
+            problem.notes.append(f"{name} at its {'lower' if best.values[name] == lower else 'upper'} bound "
+                                 f"{best.values[name]:.3g}")
+    return TuneResult(estimator=estimator, figures=problem.figures_of(best.values), start=problem.start,
+                      bounds=bounds, log_likelihood_trace=tuple(problem.trace), n_replays=problem.spent,
+                      nis_before=problem.nis_before, nis_after=channel_consistency(best.run.diagnostics),
+                      wall_s=time.perf_counter() - started, notes=tuple(problem.notes))
 
 
 def tune_calibration(log: FlightLog, cal: Calibration, estimators: str | Sequence[str] = DEFAULT_ESTIMATORS, *,
