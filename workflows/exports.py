@@ -12,6 +12,7 @@ from calib.export import calibration_text, write_calibration
 from calib.parameter_export import (
     DEFAULT_PREDICT_PERIOD_S,
     EKF3_TARGET_DT_S,
+    EXPORT_ESTIMATOR,
     AutopilotParam,
     ardupilot_parameters,
     ardupilot_parm_text,
@@ -22,12 +23,15 @@ from calib.parameter_export import (
 )
 from ingest.files import atomic_write_text
 
-__all__ = ["ardupilot_parameter_set", "ardupilot_text", "calibration_text", "px4_parameter_set", "px4_text",
-           "write_calibration", "write_calibration_files"]
+__all__ = ["ardupilot_parameter_set", "ardupilot_replay_text", "ardupilot_text", "calibration_text",
+           "px4_parameter_set", "px4_replay_text", "px4_text", "write_calibration", "write_calibration_files"]
 
 
 def _origin(cal: Calibration) -> str:
-    return f"calibrated by solarnav from {cal.source} (sha256 {cal.sha256})"
+    """Which flight the figures come from, and which estimator's figures they are."""
+    figures = (f"the noise identified for {EXPORT_ESTIMATOR}" if EXPORT_ESTIMATOR in cal.tuning
+               else "the calibrated figures (no identification)")
+    return f"calibrated by solarnav from {cal.source} (sha256 {cal.sha256}): {figures}"
 
 
 def _imu_rate_hz(cal: Calibration) -> float | None:
@@ -73,10 +77,33 @@ def ardupilot_text(cal: Calibration, log_parameters: dict) -> str:
     return ardupilot_parm_text(params, header=header)
 
 
+def px4_replay_text(cal: Calibration, log_parameters: dict) -> str:
+    """:func:`px4_parameter_set` as PX4's EKF2 replay override file ``replay_params.txt``: ``NAME value`` lines,
+    ``#`` comment lines (docs/calibration.md, 'Replaying with the autopilot replay tools')."""
+    params, header = px4_parameter_set(cal, log_parameters)
+    lines = [f"# {line}".rstrip() for line in header.splitlines()]
+    lines += ["# PX4 EKF2 replay: copy to build/px4_sitl_default_replay/rootfs/replay_params.txt"]
+    lines += [f"{p.name} {p.value!r}" for p in params]
+    return "\n".join(lines) + "\n"
+
+
+def ardupilot_replay_text(cal: Calibration, log_parameters: dict) -> str:
+    """:func:`ardupilot_parameter_set` as an ArduPilot Replay ``--param-file``: ``NAME,VALUE`` lines, ``#``
+    comment lines (docs/calibration.md, 'Replaying with the autopilot replay tools')."""
+    params, header = ardupilot_parameter_set(cal, log_parameters)
+    lines = [f"# {line}".rstrip() for line in header.splitlines()]
+    lines += ["# ArduPilot Replay: build/sitl/tool/Replay --param-file THIS_FILE LOG.bin"]
+    lines += [f"{p.name},{p.value!r}" for p in params]
+    return "\n".join(lines) + "\n"
+
+
 def write_calibration_files(cal: Calibration, log_parameters: dict, calib_path: str | os.PathLike | None = None, *,
                             px4_path: str | os.PathLike | None = None,
-                            ardupilot_path: str | os.PathLike | None = None) -> list[Path]:
-    """Write CALIB.json and the requested autopilot parameter files, each atomically; returns the paths written.
+                            ardupilot_path: str | os.PathLike | None = None,
+                            px4_replay_path: str | os.PathLike | None = None,
+                            ardupilot_replay_path: str | os.PathLike | None = None) -> list[Path]:
+    """Write CALIB.json and the requested autopilot parameter files (``.params``, ``.parm`` and the replay tools'
+    override files), each atomically; returns the paths written.
 
     Raises
     ------
@@ -88,4 +115,8 @@ def write_calibration_files(cal: Calibration, log_parameters: dict, calib_path: 
         written.append(atomic_write_text(px4_path, px4_text(cal, log_parameters)))
     if ardupilot_path is not None:
         written.append(atomic_write_text(ardupilot_path, ardupilot_text(cal, log_parameters)))
+    if px4_replay_path is not None:
+        written.append(atomic_write_text(px4_replay_path, px4_replay_text(cal, log_parameters)))
+    if ardupilot_replay_path is not None:
+        written.append(atomic_write_text(ardupilot_replay_path, ardupilot_replay_text(cal, log_parameters)))
     return written

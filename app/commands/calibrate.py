@@ -1,6 +1,7 @@
 """``solarnav calibrate LOG [--start-s A --end-s B | --segment auto] [--cutoff-hz F] [--numtaps N] [--tau X|auto]
 [--tau-method likelihood|nis] [--noise sigma|eta] [--tune [--tune-budget N] [--estimators a,b,c]] -o CALIB.json
-[--px4-params OUT.params] [--ardupilot-parm OUT.parm]``: sensor noise, biases, Allan figures, R and tau from a flight
+[--px4-params OUT.params] [--ardupilot-parm OUT.parm] [--px4-replay-params replay_params.txt]
+[--ardupilot-replay-params OUT.param]``: sensor noise, biases, Allan figures, R and tau from a flight
 log, the filter figures they give (each with its source), optionally the noise identified per estimator from the
 flight's own innovations, written as CALIB.json (and optionally as PX4 EKF2 and ArduPilot EKF3 noise parameters).
 
@@ -61,6 +62,10 @@ def add_parser(subparsers) -> None:
     parser.add_argument("--px4-params", metavar="OUT.params", help="also write EKF2 noise parameters (QGC format)")
     parser.add_argument("--ardupilot-parm", metavar="OUT.parm",
                         help="also write ArduPilot EKF3 noise parameters (.parm, 'NAME VALUE' lines)")
+    parser.add_argument("--px4-replay-params", metavar="replay_params.txt",
+                        help="also write the EKF2 noise as PX4 ekf2 replay's override file ('NAME value' lines)")
+    parser.add_argument("--ardupilot-replay-params", metavar="OUT.param",
+                        help="also write the EKF3 noise as ArduPilot Replay's --param-file ('NAME,VALUE' lines)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -77,7 +82,8 @@ def run(args: argparse.Namespace) -> int:
                         on_compile=lambda message: print(f"{message} ...", file=sys.stderr, flush=True))
     try:
         written = write_calibration_files(cal, log.meta.parameters, args.output, px4_path=args.px4_params,
-                                          ardupilot_path=args.ardupilot_parm)
+                                          ardupilot_path=args.ardupilot_parm, px4_replay_path=args.px4_replay_params,
+                                          ardupilot_replay_path=args.ardupilot_replay_params)
     except OSError as exc:
         raise InputError(f"cannot write the output ({exc.strerror})", source=exc.filename) from exc
     print(format_summary(cal))
