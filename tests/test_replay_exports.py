@@ -1,5 +1,5 @@
-"""Override files for the autopilots' own replay tools (issue 33, item 2; docs/calibration.md, 'Replaying with the
-autopilots' own tools'): each read back by its tool's own rules equals the .params / .parm export."""
+"""Override files for the autopilots' own replay tools (issue 33, item 2): each read back by its tool's own rules
+equals the .params / .parm export (docs/calibration.md, 'Replaying with the autopilot replay tools')."""
 
 from __future__ import annotations
 
