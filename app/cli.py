@@ -14,7 +14,7 @@ from collections.abc import Sequence
 
 from ingest.errors import InputError
 
-COMMANDS = ("info", "dashboard", "simulate", "calibrate", "replay", "sun", "params", "batch")
+COMMANDS = ("info", "dashboard", "simulate", "calibrate", "replay", "sun", "params", "report", "batch")
 
 #: Exit code for bad input (argparse uses 2 for bad arguments too).
 EXIT_BAD_INPUT = 2
