@@ -14,6 +14,8 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
+import time
+from concurrent.futures import Future, ThreadPoolExecutor
 
 import numpy as np
 import pandas as pd
@@ -41,7 +43,7 @@ from estimators.sun.prediction import sun_vector_table
 from ingest.flightlog import FlightLog
 from ingest.quality import assess_input_quality
 from workflows.calibration import choose_tau_by_replay, identify_noise, measure_noise
-from workflows.exports import calibration_text, px4_text
+from workflows.exports import ardupilot_replay_text, ardupilot_text, calibration_text, px4_replay_text, px4_text
 
 #: Bytes per MB in Streamlit's ``server.maxUploadSize``.
 BYTES_PER_MB = 1024 * 1024
@@ -244,20 +246,52 @@ def with_tau_value(cal: Calibration, tau: float | TauSelection) -> Calibration:
     return with_tau(cal, tau if isinstance(tau, TauSelection) else user_tau(tau))
 
 
-def calibration_files(root: str, sha256: str, cal: Calibration) -> tuple[str, str]:
-    """CALIB.json text and the PX4 ``.params`` text of a calibration (:mod:`workflows.exports`, as the CLI writes
-    them)."""
-    return calibration_text(cal), px4_text(cal, stored_log(root, sha256).meta.parameters)
+#: The files of a calibration the page offers: file name -> (button label, MIME type).
+CALIBRATION_FILES = {
+    "CALIB.json": ("CALIB.json", "application/json"),
+    "solarnav_ekf2.params": ("PX4 EKF2 .params", "text/plain"),
+    "solarnav_ek3.parm": ("ArduPilot EKF3 .parm", "text/plain"),
+    "replay_params.txt": ("PX4 ekf2 replay_params.txt", "text/plain"),
+    "solarnav_replay.param": ("ArduPilot Replay --param-file", "text/plain"),
+}
 
 
-@st.cache_resource(max_entries=4, show_spinner="Identifying the noise from the flight's innovations (a minute for "
-                                                "15 minutes of flight) ...")
-def tuned_calibration(root: str, sha256: str, _cal: Calibration, cal_digest: str) -> Calibration:
-    """``_cal`` with its in-flight bias, its filter figures and the noise identified per estimator
-    (:func:`workflows.calibration.identify_noise`, as ``solarnav calibrate --tune``); cached by the log and the
-    digest of the calibration's CALIB.json text."""
-    del cal_digest  # the cache key of _cal
-    return identify_noise(stored_log(root, sha256), _cal)
+def calibration_files(root: str, sha256: str, cal: Calibration) -> dict[str, str]:
+    """File name (:data:`CALIBRATION_FILES`) -> text of every file of a calibration, for either log format
+    (:mod:`workflows.exports`, as the CLI writes them)."""
+    parameters = stored_log(root, sha256).meta.parameters
+    return {"CALIB.json": calibration_text(cal), "solarnav_ekf2.params": px4_text(cal, parameters),
+            "solarnav_ek3.parm": ardupilot_text(cal, parameters),
+            "replay_params.txt": px4_replay_text(cal, parameters),
+            "solarnav_replay.param": ardupilot_replay_text(cal, parameters)}
+
+
+@dataclasses.dataclass(frozen=True)
+class IdentificationJob:
+    """A noise identification running (or done) in the background: its future (the calibration with the
+    identified noise) and when it started (``time.monotonic()`` [s])."""
+
+    future: Future
+    started_s: float
+
+
+@st.cache_resource(show_spinner=False)
+def _identification_jobs() -> tuple[ThreadPoolExecutor, dict[tuple[str, str, str], IdentificationJob]]:
+    """The server's one identification worker and its jobs by (workspace, log, calibration digest): a job keeps
+    running when its page is left, and the page finds it again."""
+    return ThreadPoolExecutor(max_workers=1, thread_name_prefix="identify"), {}
+
+
+def identification(root: str, sha256: str, cal: Calibration, cal_digest: str) -> IdentificationJob:
+    """The identification of ``cal``'s noise on a stored log (:func:`workflows.calibration.identify_noise`, as
+    ``solarnav calibrate --tune``), started in the background on first call (again after a failure)."""
+    pool, jobs = _identification_jobs()
+    key = (root, sha256, cal_digest)
+    job = jobs.get(key)
+    if job is None or (job.future.done() and job.future.exception() is not None):
+        job = IdentificationJob(pool.submit(identify_noise, stored_log(root, sha256), cal), time.monotonic())
+        jobs[key] = job
+    return job
 
 
 # ---------------------------------------------------------------------------------------------------- estimators

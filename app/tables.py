@@ -210,10 +210,12 @@ def allan_table(per_axis: Sequence, axes: Sequence[str], unit: str) -> pd.DataFr
 
 
 def tuning_table(cal) -> pd.DataFrame:
-    """One row per estimator and identified figure: start, tuned value, unit, bounds."""
+    """One row per estimator and identified figure: start, tuned value, unit, bounds and its meaning (flagged
+    "at its lower/upper bound" when the search stopped on one)."""
     rows = [{"estimator": name, "figure": figure, "calibrated": start, "tuned": result.figures[figure].value,
              "unit": result.figures[figure].unit, "bounds": f"{result.bounds[figure][0]:g} .. "
-                                                             f"{result.bounds[figure][1]:g}"}
+                                                             f"{result.bounds[figure][1]:g}",
+             "meaning": result.figures[figure].meaning_within(result.bounds[figure])}
             for name, result in cal.tuning.items() for figure, start in result.start.items()]
     return pd.DataFrame(rows)
 

@@ -11,6 +11,7 @@ Schema ``"solarnav.calibration/2"`` (strict JSON; NaN is written as null; units 
           "unit": str, "axes": [str, ...],
           "segment": {"start_s": float, "end_s": float, "kind": "user" | "stationary" | "steady",
                       "reason": str},               # log clock [s]
+          "meaning": str,                           # lower bound (at rest) / in-flight / upper bound (written only)
           "filter": {"design": "firwin", "window": "hamming", "zero_phase": "filtfilt",
                      "fs_hz": float, "cutoff_hz": float, "numtaps": int, "rho_h": float},
           "n_samples": int,
@@ -46,13 +47,16 @@ Schema ``"solarnav.calibration/2"`` (strict JSON; NaN is written as null; units 
         "nis_before": [<nis>], "nis_after": [<nis>], "notes": [str, ...]}}
     }
 
-    <figure> = {"value": float, "unit": str, "source": str, "axes": [..], "note": str}
+    <figure> = {"value": float, "unit": str, "source": str, "meaning": str, "axes": [..], "note": str}
     <nis>    = {"channel": "<sensor>.<component>", "n_updates": int, "mean_nis": float, "band": [lo, hi]}
 
 ``figures`` are the calibration's filter figures (docs/calibration.md, 'From calibration to filter settings').
 A figure's ``unit`` must be the unit :data:`calib.figures.FIGURES` gives its name and its ``source`` one of
-:data:`calib.figures.SOURCES`; an unknown name is refused. "derived" Allan values are informational (recomputed on
-load). The R matrices are read as written, so a hand-edited matrix is honoured.
+:data:`calib.figures.SOURCES`; an unknown name is refused. ``meaning`` (written, not read: it follows from the
+source) says what the figure is for a filter: a lower bound (at rest), an upper bound (motion counted as noise),
+in-flight noise, identified, and "at its lower/upper bound" for an identified value on an identification bound;
+each sensor's ``meaning`` says the same of its segment (:func:`calib.tables.noise_meaning`). "derived" Allan values
+are informational (recomputed on load). The R matrices are read as written, so a hand-edited matrix is honoured.
 
 Schema ``"solarnav.calibration/1"`` (the layout above without ``figures`` and ``tuning``) is still read, into a
 :class:`~calib.calibration.Calibration` with empty ``figures`` and ``tuning``; writing always writes schema 2. Any
@@ -75,6 +79,7 @@ from calib.calibration import NOISE_CHOICES, SENSORS, Calibration, SensorCalibra
 from calib.figures import FIGURES, SOURCES, ChannelConsistency, Figure, TuneResult
 from calib.fir import FIR_WINDOW, design_fir
 from calib.segments import Segment
+from calib.tables import noise_meaning
 from calib.tau import TauSelection
 from ingest.errors import InputError
 from ingest.files import atomic_write_text
@@ -93,7 +98,7 @@ def calibration_to_dict(cal: Calibration) -> dict[str, Any]:
         "schema": SCHEMA,
         "source": {"file": cal.source, "sha256": cal.sha256, "vehicle_type": cal.vehicle_type},
         "noise_choice": cal.noise,
-        "sensors": {name: _sensor_to_dict(s) for name, s in cal.sensors.items()},
+        "sensors": {name: _sensor_to_dict(s, noise_meaning(cal, name)) for name, s in cal.sensors.items()},
         "stationary_bias": None if cal.stationary_bias is None else _stationary_to_dict(cal.stationary_bias),
         "inflight_bias": None if cal.inflight_bias is None else _inflight_to_dict(cal.inflight_bias),
         "allan": {name: [_allan_to_dict(f) for f in axes] for name, axes in cal.allan.items()},
@@ -195,9 +200,9 @@ def _segment_to_dict(segment: Segment) -> dict[str, Any]:
     return {"start_s": segment.start_s, "end_s": segment.end_s, "kind": segment.kind, "reason": segment.reason}
 
 
-def _sensor_to_dict(s: SensorCalibration) -> dict[str, Any]:
+def _sensor_to_dict(s: SensorCalibration, meaning: str) -> dict[str, Any]:
     return {
-        "unit": s.unit, "axes": list(s.axes), "segment": _segment_to_dict(s.segment),
+        "unit": s.unit, "axes": list(s.axes), "segment": _segment_to_dict(s.segment), "meaning": meaning,
         "filter": {"design": "firwin", "window": FIR_WINDOW, "zero_phase": "filtfilt", "fs_hz": s.fir.fs_hz,
                    "cutoff_hz": s.fir.cutoff_hz, "numtaps": s.fir.numtaps, "rho_h": s.fir.rho_h},
         "n_samples": s.n_samples, "eta": list(s.eta), "beta": list(s.beta), "sigma": list(s.sigma),
@@ -246,12 +251,14 @@ def _tau_to_dict(t: TauSelection) -> dict[str, Any]:
     }
 
 
-def _figure_to_dict(f: Figure) -> dict[str, Any]:
-    return {"value": f.value, "unit": f.unit, "source": f.source, "axes": list(f.axes), "note": f.note}
+def _figure_to_dict(f: Figure, bounds: tuple[float, float] | None = None) -> dict[str, Any]:
+    return {"value": f.value, "unit": f.unit, "source": f.source, "meaning": f.meaning_within(bounds),
+            "axes": list(f.axes), "note": f.note}
 
 
-def _figures_to_dict(figures: dict[str, Figure]) -> dict[str, Any]:
-    return {name: _figure_to_dict(f) for name, f in figures.items()}
+def _figures_to_dict(figures: dict[str, Figure], bounds: dict[str, tuple[float, float]] | None = None
+                     ) -> dict[str, Any]:
+    return {name: _figure_to_dict(f, (bounds or {}).get(name)) for name, f in figures.items()}
 
 
 def _consistency_to_dict(c: ChannelConsistency) -> dict[str, Any]:
@@ -260,7 +267,7 @@ def _consistency_to_dict(c: ChannelConsistency) -> dict[str, Any]:
 
 def _tuning_to_dict(t: TuneResult) -> dict[str, Any]:
     return {
-        "figures": _figures_to_dict(t.figures), "start": dict(t.start),
+        "figures": _figures_to_dict(t.figures, t.bounds), "start": dict(t.start),
         "bounds": {name: list(bound) for name, bound in t.bounds.items()},
         "log_likelihood_trace": list(t.log_likelihood_trace), "n_replays": t.n_replays,
         "nis_before": [_consistency_to_dict(c) for c in t.nis_before],

@@ -41,6 +41,18 @@ SOURCE_TUNED = "tuned (innovation likelihood)"
 SOURCE_USER = "user"
 SOURCES = (SOURCE_DEFAULT, SOURCE_STILL, SOURCE_ALLAN, SOURCE_INFLIGHT, SOURCE_INFLIGHT_BOUND, SOURCE_STILL_BIAS,
            SOURCE_INFLIGHT_BIAS, SOURCE_TAU, SOURCE_RECEIVER, SOURCE_R, SOURCE_TUNED, SOURCE_USER)
+#: What a figure of each source means for the filter that uses it (shown on the page, in CALIB.json, in the exports).
+MEANING_LOWER_BOUND = "lower bound: sensor noise at rest, without the in-flight vibration"
+MEANING_UPPER_BOUND = "upper bound: motion and vibration in the segment count as noise"
+MEANING_IN_FLIGHT = "in-flight noise (steady flight, vibration included)"
+MEANING_IDENTIFIED = "identified from the flight's innovations"
+SOURCE_MEANINGS = {
+    SOURCE_DEFAULT: "datasheet default", SOURCE_STILL: MEANING_LOWER_BOUND, SOURCE_ALLAN: MEANING_LOWER_BOUND,
+    SOURCE_INFLIGHT: MEANING_IN_FLIGHT, SOURCE_INFLIGHT_BOUND: MEANING_UPPER_BOUND,
+    SOURCE_STILL_BIAS: "bias measured at rest", SOURCE_INFLIGHT_BIAS: "bias estimated in flight",
+    SOURCE_TAU: "eq 52 penalty factor", SOURCE_RECEIVER: "the receiver's reported accuracy",
+    SOURCE_R: "eq 51 R as written in CALIB.json", SOURCE_TUNED: MEANING_IDENTIFIED, SOURCE_USER: "set by the user",
+}
 
 
 #: Estimator registry names (:data:`estimators.api.ESTIMATORS`) the table's rows name.
@@ -333,6 +345,19 @@ class Figure:
     def unit(self) -> str:
         """Unit of :attr:`value` (from :data:`FIGURES`)."""
         return FIGURES[self.name].unit
+
+    @property
+    def meaning(self) -> str:
+        """What the figure is for a filter (:data:`SOURCE_MEANINGS`): a lower or upper bound of the sensor noise,
+        in-flight noise, identified, ..."""
+        return SOURCE_MEANINGS.get(self.source, self.source)
+
+    def meaning_within(self, bounds: tuple[float, float] | None) -> str:
+        """:attr:`meaning`, with ", at its lower/upper bound" for a value on one of the identification ``bounds``
+        (the search stopped there: the flight asked for more than the bound allows)."""
+        if bounds is None or self.value not in bounds:
+            return self.meaning
+        return f"{self.meaning}, at its {'lower' if self.value == bounds[0] else 'upper'} bound {self.value:.3g}"
 
 
 @dataclass(frozen=True)

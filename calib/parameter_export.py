@@ -297,7 +297,7 @@ def autopilot_parameters(figures: dict[str, Figure], autopilot: str, predict_per
         if spec is None or figure is None or not (math.isfinite(figure.value) and figure.value > 0):
             continue
         value = figure.value
-        comments = [f"{figure.name} = {figure.value:.4g} {figure.unit} ({figure.source})"
+        comments = [f"{figure.name} = {figure.value:.4g} {figure.unit} ({figure.source}: {figure.meaning})"
                     + (f"; {figure.note}" if figure.note else "")]
         scale = figures.get(row.scale_figure) if row.scale_figure else None
         if scale is not None and scale.value != 1.0:

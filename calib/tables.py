@@ -11,15 +11,28 @@ import numpy as np
 import pandas as pd
 
 from calib.calibration import Calibration
+from calib.figures import MEANING_IN_FLIGHT, MEANING_LOWER_BOUND, MEANING_UPPER_BOUND
 
 #: Paper Table 4 labels the gyro axes by their rates.
 GYRO_RATE_LABELS = ("p", "q", "r")
 
 
+def noise_meaning(cal: Calibration, sensor: str) -> str:
+    """What a sensor's noise figures are, from the kind of its segment: at rest (a found stationary segment, or a
+    window the stationarity test accepts) a lower bound of the in-flight noise; in steady flight the in-flight
+    noise; in any other window an upper bound (its motion and vibration count as noise)."""
+    segment = cal.sensors[sensor].segment
+    at_rest = segment.kind == "stationary" or (
+        cal.stationary_bias is not None and cal.stationary_bias.segment == segment)
+    if at_rest:
+        return MEANING_LOWER_BOUND
+    return MEANING_IN_FLIGHT if segment.kind == "steady" else MEANING_UPPER_BOUND
+
+
 def noise_table(cal: Calibration) -> pd.DataFrame:
     """Per sensor and axis: unit, eq 50 eta/beta, sigma, robust sigma, mean, the physically referenced bias
     (gyro mean and the identifiable along-gravity accelerometer bias on a stationary segment, NaN elsewhere),
-    rate, filter and segment. Index: (sensor, axis)."""
+    rate, filter, segment and what the figures mean (:func:`noise_meaning`). Index: (sensor, axis)."""
     rows = []
     for name, s in cal.sensors.items():
         bias = _physical_bias(cal, name)
@@ -30,6 +43,7 @@ def noise_table(cal: Calibration) -> pd.DataFrame:
                 "physical_bias": bias[k] if bias is not None else np.nan, "rate_hz": s.fir.fs_hz,
                 "cutoff_hz": s.fir.cutoff_hz, "numtaps": s.fir.numtaps, "segment_kind": s.segment.kind,
                 "segment_start_s": s.segment.start_s, "segment_end_s": s.segment.end_s,
+                "meaning": noise_meaning(cal, name),
             })
     return pd.DataFrame(rows).set_index(["sensor", "axis"])
 

@@ -129,8 +129,9 @@ def test_calibration_tables_tau_and_window(open_page):
     stored = Workspace(session.root()).list_calibrations(at.sidebar.selectbox[0].value)
     window_s = json.loads(stored["settings_json"].iloc[0])["window_s"]
     assert window_s == pytest.approx([log_start_s + low, log_start_s + low + 0.6 * (high - low)], abs=0.06)
-    assert {button.label for button in at.get("download_button")} == {"Download CALIB.json",
-                                                                       "Download PX4 .params"}
+    # PX4 and ArduPilot files for either log format, the replay tools' override files among them
+    assert {button.label for button in at.get("download_button")} == {
+        label for label, _ in adapters.CALIBRATION_FILES.values()} >= {"PX4 EKF2 .params", "ArduPilot EKF3 .parm"}
 
     at.segmented_control(key="calib_section").set_value("R matrices and tau").run()
     at.radio(key="calib_tau_mode").set_value("likelihood").run()  # replays the three-stage filter per tau
@@ -182,3 +183,23 @@ def test_sun_page_shows_cells_and_prediction(open_page):
     [shares] = _frames(at, lambda v: "faulty [%]" in v.index)
     assert shares.loc["faulty [%]", "cell 2"] > 10.0
     assert at.radio(key="sun_attitude").value == "truth"
+
+
+def test_identification_survives_leaving_the_page(open_page):
+    """Started, page left, page back: the wish is kept and the same background job is found (running or done)."""
+    at = open_page("views/calibration.py", SHORT_SAMPLE)
+    at.toggle(key="calib_tune").set_value(True).run()
+    assert not at.exception
+    sha256 = at.sidebar.selectbox[0].value
+    jobs = adapters._identification_jobs()[1]
+    started = [job for key, job in jobs.items() if key[1] == sha256]
+    assert len(started) == 1
+    at.switch_page("views/overview.py")
+    at.run()
+    at.switch_page("views/calibration.py")
+    at.run()
+    assert not at.exception and at.toggle(key="calib_tune").value
+    assert [job for key, job in jobs.items() if key[1] == sha256] == started  # found again, not restarted
+    started[0].future.result(timeout=TIMEOUT_S)
+    at.run()
+    assert any(frame.value.columns[0] == "estimator" and "meaning" in frame.value.columns for frame in at.dataframe)

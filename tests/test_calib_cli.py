@@ -28,7 +28,7 @@ def test_calibrate_writes_calib_json_and_params(real_logs_dir, tmp_path, capsys)
     density = export_figures(cal)["gyro_noise_density"]
     # The log has no EKF2_PREDICT_US: PX4's default 10 ms step; EKF3 predicts every 12 ms (EKF_TARGET_DT).
     assert back["EKF2_GYR_NOISE"].value == pytest.approx(density.value / np.sqrt(0.01))
-    assert f"gyro_noise_density = {density.value:.4g} rad/s/sqrt(Hz) ({density.source})" in \
+    assert f"gyro_noise_density = {density.value:.4g} rad/s/sqrt(Hz) ({density.source}: {density.meaning})" in \
         back["EKF2_GYR_NOISE"].comments[0]
     ekf3 = read_ardupilot_parm(parm)
     assert ekf3["EK3_GYRO_P_NSE"].value == pytest.approx(density.value / np.sqrt(0.012))

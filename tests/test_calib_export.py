@@ -14,6 +14,7 @@ from calib.bias import InflightBias
 from calib.calibration import calibrate, with_tau
 from calib.export import SCHEMA, calibration_from_dict, calibration_to_dict, read_calibration, write_calibration
 from calib.figures import (
+    MEANING_LOWER_BOUND,
     SOURCE_ALLAN,
     SOURCE_DEFAULT,
     SOURCE_STILL,
@@ -66,7 +67,8 @@ def test_json_round_trip(cal, tmp_path):
     assert (back.source, back.sha256, back.vehicle_type, back.noise) == (cal.source, cal.sha256, 1, "sigma")
     assert back.figures == cal.figures and back.tuning == cal.tuning
     assert data["figures"]["gyro_noise_density"] == {"value": 2e-3, "unit": "rad/s/sqrt(Hz)", "source": SOURCE_ALLAN,
-                                                     "axes": [1e-3, 2e-3, 2.6e-3], "note": "Allan white-noise density"}
+                                                     "meaning": MEANING_LOWER_BOUND, "axes": [1e-3, 2e-3, 2.6e-3],
+                                                     "note": "Allan white-noise density"}
     assert data["tuning"]["full_state_indirect"]["bounds"]["wind_walk"] == [0.01, 2.0]
     # Allan figures hold NaN (no random walk), which never compares equal: compare the JSON forms.
     assert calibration_to_dict(back) == calibration_to_dict(cal)

@@ -9,7 +9,7 @@ import pytest
 from test_calib_synthetic import synthetic_log
 
 from calib.calibration import calibrate
-from calib.figures import FIGURES, SOURCE_ALLAN, SOURCE_STILL, SOURCE_TUNED, Figure, TuneResult
+from calib.figures import FIGURES, MEANING_LOWER_BOUND, SOURCE_ALLAN, SOURCE_STILL, SOURCE_TUNED, Figure, TuneResult
 from calib.filter_figures import calibration_figures
 from calib.parameter_export import (
     MAPPING,
@@ -84,7 +84,7 @@ def test_px4_conversions_by_hand():
         assert params[name].value == pytest.approx(value, rel=1e-12), name
         assert params[name].type == PARAM_TYPE_REAL32
         assert params[name].comments[0].startswith(f"{FIGURES_IN_RANGE_FIGURE[name]} = ")
-        assert f"({SOURCE_STILL}); test" in params[name].comments[0]
+        assert f"({SOURCE_STILL}: {MEANING_LOWER_BOUND}); test" in params[name].comments[0]
     assert "x / sqrt(dt) = 0.02 rad/s at dt = 10 ms" in params["EKF2_GYR_NOISE"].comments
     assert len(params["EKF2_BARO_NOISE"].comments) == 1  # nothing converted, nothing clamped
 

@@ -2,6 +2,7 @@
 matrices (eq 51) with tau (eq 52), the Allan deviations, and download CALIB.json / the PX4 .params file."""
 
 import hashlib
+import time
 
 import numpy as np
 import pandas as pd
@@ -9,16 +10,28 @@ import streamlit as st
 
 from app import adapters, figures, session, tables, time_range
 from calib.calibration import SENSORS
+from calib.figures import MEANING_LOWER_BOUND, MEANING_UPPER_BOUND
 from calib.fir import frequency_response
-from calib.tables import noise_table, r_tables, table4
+from calib.tables import noise_meaning, noise_table, r_tables, table4
 from calib.tau import TAU_METHODS
 from workflows.exports import calibration_text
 
 TAU_CHOICES = (0.1, 0.2, 0.5, 1.0, 2.0, 5.0, 10.0, 20.0, 50.0, 100.0)
 TAU_MODE_LABELS = {"manual": "by hand", "likelihood": "auto: likelihood", "nis": "auto: mean NIS = 1"}
 WINDOW_KEY = "calib_window"
+#: Session key of the wish to identify the noise (outlives the toggle's own state, which a page switch drops).
+TUNE_WANTED_KEY = "calib_tune_wanted"
 #: Step of the window slider [s].
 WINDOW_STEP_S = 0.1
+
+
+
+@st.fragment(run_every=2.0)
+def wait_for(future) -> None:
+    """Rerun the page when ``future`` is done (polled every 2 s, only this fragment meanwhile)."""
+    if future.done():
+        st.rerun()
+
 
 log = session.require_log()
 root, sha256 = session.root(), session.selected_sha256()
@@ -92,6 +105,16 @@ else:  # greyed, showing the tau actually in use
     tau = right.number_input("tau (in use, chosen automatically)", value=float(selection.tau), format="%.3g",
                              disabled=True)
 current = adapters.with_tau_value(base, selection or tau) if selection or tau != base.tau.tau else base
+meanings = {name: noise_meaning(base, name) for name in base.sensors}
+upper = [name for name, meaning in meanings.items() if meaning == MEANING_UPPER_BOUND]
+if upper:  # the figures that mislead most come first
+    st.warning(f"The noise figures of {', '.join(upper)} are **upper bounds**: the segment is neither at rest nor in "
+               "steady flight, so its motion and vibration count as noise. Pick a stationary or steady window for "
+               "the sensor noise itself.")
+lower = [name for name, meaning in meanings.items() if meaning == MEANING_LOWER_BOUND]
+if lower:
+    st.info(f"The noise figures of {', '.join(lower)} come from the vehicle at rest: **lower bounds** of the in-flight "
+            "noise (no vibration).")
 for warning in base.warnings:
     st.warning(warning)
 for warning in tables.tau_warnings(selection) if selection is not None else ():
@@ -170,25 +193,46 @@ st.subheader("Noise identified from the flight")
 st.caption("Per estimator, the noise figures that maximise the likelihood of its own innovations, starting from "
            "the calibrated ones (`solarnav calibrate --tune`; docs/calibration.md, 'Noise identification'). "
            "Saved calibrations carry them; runs with such a calibration use each estimator's own figures.")
-if st.toggle("Identify noise (about a minute for 15 minutes of flight)", key="calib_tune"):
+# the toggle's own state is dropped when the page is left: its wish is kept apart, so the page comes back to it
+if "calib_tune" not in st.session_state:
+    st.session_state["calib_tune"] = st.session_state.get(TUNE_WANTED_KEY, False)
+st.session_state[TUNE_WANTED_KEY] = st.toggle("Identify noise (about a minute for 15 minutes of flight; it keeps "
+                                              "running when you leave the page)", key="calib_tune")
+if st.session_state[TUNE_WANTED_KEY]:
     digest = hashlib.sha256(calibration_text(current).encode()).hexdigest()
-    current = adapters.tuned_calibration(root, sha256, current, digest)
-    st.dataframe(tables.tuning_table(current), hide_index=True, key="calib_tuning_table", width="stretch")
-    st.dataframe(tables.verdict_style(tables.tuning_nis_table(current)), hide_index=True, key="calib_tuning_nis",
-                 width="stretch", column_config={"why": st.column_config.TextColumn("why", width="large")})
-    low, high = tables.NIS_WARNING_RANGE
-    st.caption("Verdict of the tuned mean NIS: pass inside its 95 % chi-square band, warn outside it but within "
-               f"{low:g} .. {high:g}, fail beyond (the band ignores correlated innovations, so long logs rarely "
-               "pass).")
+    job = adapters.identification(root, sha256, current, digest)
+    if not job.future.done():
+        st.info(f"Identifying the noise from the flight's innovations: running for "
+                f"{time.monotonic() - job.started_s:.0f} s (it goes on if you leave this page; come back for it).")
+        wait_for(job.future)
+    elif job.future.exception() is not None:
+        with session.input_errors():
+            job.future.result()
+    else:
+        current = job.future.result()
+        st.dataframe(tables.tuning_table(current), hide_index=True, key="calib_tuning_table", width="stretch")
+        st.dataframe(tables.verdict_style(tables.tuning_nis_table(current)), hide_index=True,
+                     key="calib_tuning_nis", width="stretch",
+                     column_config={"why": st.column_config.TextColumn("why", width="large")})
+        low, high = tables.NIS_WARNING_RANGE
+        st.caption("Verdict of the tuned mean NIS: pass inside its 95 % chi-square band, warn outside it but "
+                   f"within {low:g} .. {high:g}, fail beyond (the band ignores correlated innovations, so long logs "
+                   "rarely pass). A figure on its search bound is flagged in 'meaning'.")
 
 # ------------------------------------------------------------------ export
 st.subheader("Export")
-calib_json, params_text = adapters.calibration_files(root, sha256, current)
-left, middle, right = st.columns(3)
-left.download_button("Download CALIB.json", calib_json, file_name="CALIB.json", mime="application/json")
-middle.download_button("Download PX4 .params", params_text, file_name="solarnav_ekf2.params", mime="text/plain")
-if right.button("Save in the workspace", key="calib_save"):
+files = adapters.calibration_files(root, sha256, current)
+st.caption("The autopilot files hold " + ("the noise identified for full_state_indirect (EKF2 and EKF3 are "
+           "error-state filters like it)" if "full_state_indirect" in current.tuning else
+           "the calibrated figures (identify the noise above for the identified ones)")
+           + "; each file's header names the flight and the estimator (docs/calibration.md, 'Replaying with the "
+             "autopilot replay tools').")
+columns = st.columns(len(files) + 1)
+for column, (name, text) in zip(columns, files.items(), strict=False):
+    label, mime = adapters.CALIBRATION_FILES[name]
+    column.download_button(label, text, file_name=name, mime=mime, key=f"calib_download_{name}")
+if columns[-1].button("Save in the workspace", key="calib_save"):
     fir_json = [[name, None if np.isnan(cutoff) else cutoff, taps] for name, cutoff, taps in fir_rows]
     settings = {"window_s": window, "fir": fir_json, "noise": noise, "tau": current.tau.tau,
                 "tau_method": current.tau.method}
-    session.save_calibration(sha256, settings, calib_json)
+    session.save_calibration(sha256, settings, files["CALIB.json"])
