@@ -13,12 +13,6 @@ of the calibration's figures, so the start IS the ``--calib`` replay) and is sea
    outside), no more resets, and on a fixed wing no more epochs with the estimated air flowing backwards through
    the airframe than at the start (at most 5 %).
 
-Every step is judged by time-split validation: the updates of even :data:`VALIDATION_BLOCK_S` blocks of the flight
-choose, those of the odd blocks confirm, and a candidate is kept only when it raises the likelihood of both (a
-gust or a disturbance in one part of the flight cannot pull a figure that the rest of it contradicts). Last, every
-figure moved from its start goes back to it unless the move raised the held-out likelihood by
-:data:`EVIDENCE_NATS` (where the evidence is weak, the calibrated or datasheet value stays).
-
 The likelihood is :func:`estimators.consistency.log_likelihood` (normalised innovations clipped at 5 sigma).
 Each evaluation rebuilds the replay inputs (0.1 s for 15 minutes of flight: measurement variances live in the
 event table) and runs the compiled kernel, which releases the GIL, so the estimators are identified in parallel
@@ -145,30 +139,18 @@ def tuned_figures(base: dict[str, Figure], values: dict[str, float], start: Esti
     return figures
 
 
-#: Length of the alternating blocks of the time-split validation [s]: even blocks choose, odd blocks confirm.
-VALIDATION_BLOCK_S = 60.0
-#: A figure moved from its start must raise the validation log-likelihood by at least this much [nats] (a
-#: likelihood ratio of e^2, "positive evidence"), else it falls back to its start.
-EVIDENCE_NATS = 2.0
-
-
 @dataclass(frozen=True)
 class _Candidate:
-    """A set of knob values, its replay and its log-likelihoods on the choosing and the confirming blocks (-inf
-    for a replay that is not :meth:`_Identification.trusted`)."""
+    """A set of knob values, its replay and its log-likelihood (-inf for a replay that is not
+    :meth:`_Identification.trusted`)."""
 
     values: dict[str, float]
     run: EstimatorRun
-    choose_ll: float
-    confirm_ll: float
+    log_likelihood: float
 
     def beats(self, other: _Candidate) -> bool:
-        """Better on the blocks it was chosen on AND on the held-out ones."""
-        return self.choose_ll > other.choose_ll and self.confirm_ll > other.confirm_ll
-
-    @property
-    def total_ll(self) -> float:
-        return self.choose_ll + self.confirm_ll
+        """A higher likelihood."""
+        return self.log_likelihood > other.log_likelihood
 
 
 class _Identification:
@@ -203,7 +185,7 @@ class _Identification:
         self.airflow_limit = (max(REVERSED_AIRFLOW_LIMIT, _reversed_share(first)) if self.check_airflow
                               else math.inf)
         self.first = self._scored(self.start, first, judged=False)
-        self.trace.append(self.first.total_ll)
+        self.trace.append(self.first.log_likelihood)
 
     def figures_of(self, values: dict[str, float]) -> dict[str, Figure]:
         return tuned_figures(self.base_figures, values, self.start_config, self.strength)
@@ -217,13 +199,9 @@ class _Identification:
 
     def _scored(self, values: dict[str, float], run: EstimatorRun, *, judged: bool = True) -> _Candidate:
         """``run`` of ``values`` scored (the start replay is not ``judged``: it sets the limits)."""
-        diagnostics = run.diagnostics
         if judged and not self.trusted(run):
-            return _Candidate(values, run, -math.inf, -math.inf)
-        time_s = diagnostics["time_s"].to_numpy(dtype=float)
-        confirming = (np.floor((time_s - self.log.meta.start_time_s) / VALIDATION_BLOCK_S) % 2) == 1
-        return _Candidate(values, run, log_likelihood(diagnostics[~confirming]),
-                          log_likelihood(diagnostics[confirming]))
+            return _Candidate(values, run, -math.inf)
+        return _Candidate(values, run, log_likelihood(run.diagnostics))
 
     def evaluate(self, values: dict[str, float]) -> _Candidate:
         """Replay ``values`` (one replay of the budget) and score it."""
@@ -251,7 +229,7 @@ class _Identification:
     def keep(self, best: _Candidate, candidate: _Candidate) -> _Candidate:
         """The better of the two (``candidate`` only when it :meth:`~_Candidate.beats` ``best``), traced."""
         kept = candidate if candidate.beats(best) else best
-        self.trace.append(kept.total_ll)
+        self.trace.append(kept.log_likelihood)
         return kept
 
 
@@ -303,22 +281,6 @@ def _pattern_search(problem: _Identification, best: _Candidate) -> _Candidate:
     return best
 
 
-def _fall_back_where_weak(problem: _Identification, best: _Candidate) -> _Candidate:
-    """Every figure moved from its start goes back to it unless the move raised the held-out blocks' likelihood by
-    :data:`EVIDENCE_NATS` (one replay each, beyond the budget: the check is what makes the result trustworthy)."""
-    for k in problem.knobs:
-        if best.values[k.name] == problem.start[k.name]:
-            continue
-        reverted = problem.evaluate({**best.values, k.name: problem.start[k.name]})
-        if reverted.confirm_ll > best.confirm_ll - EVIDENCE_NATS and math.isfinite(reverted.confirm_ll):
-            problem.notes.append(f"{k.name} kept at its start {problem.start[k.name]:.3g}: the identified "
-                                 f"{best.values[k.name]:.3g} raised the held-out likelihood by "
-                                 f"{best.confirm_ll - reverted.confirm_ll:.2f} < {EVIDENCE_NATS:g} nats")
-            best = reverted
-        problem.trace.append(best.total_ll)
-    return best
-
-
 def tune_estimator(log: FlightLog, cal: Calibration, estimator: str, *, budget: int = DEFAULT_BUDGET,
                    heading: str = "mag", sun_observations=None) -> TuneResult:
     """Identify the noise figures of one estimator on ``log``, starting from ``cal``'s (see the module docstring).
@@ -332,15 +294,13 @@ def tune_estimator(log: FlightLog, cal: Calibration, estimator: str, *, budget: 
     estimator : str
         Registry name.
     budget : int
-        Replays to spend on the search (>= 2; the fall-back check adds one per moved figure).
+        Replays to spend (>= 2).
     heading, sun_observations
         As :func:`estimators.api.run_estimators`.
     """
     started = time.perf_counter()
     problem = _Identification(log, cal, estimator, budget, heading, sun_observations)
-    best = _fall_back_where_weak(problem, _pattern_search(problem, _match_covariances(problem, problem.first)))
-    problem.notes.append(f"held-out ({VALIDATION_BLOCK_S:g}-s odd blocks) log-likelihood {problem.first.confirm_ll:.6g}"
-                         f" -> {best.confirm_ll:.6g}")
+    best = _pattern_search(problem, _match_covariances(problem, problem.first))
     bounds = {k.name: (k.identification.lower, k.identification.upper) for k in problem.knobs}
     for name, (lower, upper) in bounds.items():
         if best.values[name] in (lower, upper):
