@@ -28,7 +28,7 @@ table{border-collapse:collapse;font-size:.85em;margin:.5em 0} th,td{border:1px s
 th{background:#f4f4f4} td{text-align:right} td:first-child,th:first-child{text-align:left}
 .consistent{background:#e6f4ea} .conservative{background:#e8f0fe} .inconsistent{background:#fce8e6}
 .verdict{padding:.4em .6em;margin:.3em 0;border-radius:4px} pre{background:#f7f7f7;padding:.6em;overflow-x:auto}
-.note{color:#555;font-size:.9em}
+.note{color:#555;font-size:.9em} .wide{overflow-x:auto}
 """
 #: Points per line of a report's charts (the dashboard draws 2000): enough for a flight's shape, and the file stays
 #: a few MB (every point carries its hover text).
@@ -36,7 +36,8 @@ REPORT_MAX_POINTS = 500
 
 
 def _table(frame: pd.DataFrame, *, index: bool = False) -> str:
-    return frame.to_html(index=index, float_format=lambda v: f"{v:.4g}", na_rep="–", border=0)
+    table = frame.to_html(index=index, float_format=lambda v: f"{v:.4g}", na_rep="–", border=0)
+    return f'<div class="wide">{table}</div>'  # a wide table scrolls instead of running off the page
 
 
 def _figure(fig: go.Figure) -> str:
