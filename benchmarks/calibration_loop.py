@@ -22,14 +22,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from calib.bias import local_gravity
-from calib.calibration import calibrate, with_tau
-from calib.tau import choose_tau
-from estimators.api import ESTIMATORS, run_estimators
-from estimators.calibration_replay import tau_replay, with_filter_figures
-from estimators.config import config_from_calibration
 from estimators.evaluation import rms_errors
-from estimators.tuning import tune_calibration
 from ingest.log_formats import load_flight_log
 from sim.kinematics import Site
 from sim.px4_export import write_outputs
@@ -37,6 +30,8 @@ from sim.scenarios import SCENARIOS, SensorSpec
 from sim.sensors import AirspeedGrade, BaroGrade, GpsGrade, ImuGrade, MagGrade
 from sim.simulate import simulate
 from sim.wind import WindConfig
+from workflows.calibration import calibrate_log, identify_noise
+from workflows.replay import replay_log
 
 METRICS = ("roll_deg", "pitch_deg", "yaw_deg", "position_m", "height_m", "airspeed_m_s", "wind_m_s")
 
@@ -83,19 +78,17 @@ def evaluate(name: str, scenario, seed: int, *, tune: bool, workdir: Path) -> di
     paths = write_outputs(result, workdir / name)
     log = load_flight_log(paths["ulog"])
     started = time.perf_counter()
-    cal = calibrate(log, gravity=local_gravity(log))
-    cal = with_tau(cal, choose_tau(tau_replay(log, cal)))
-    cal = with_filter_figures(log, cal)
+    cal = calibrate_log(log, tau=None)  # automatic segments, tau by replay, the filter figures
     timings = {"calibrate_s": time.perf_counter() - started}
-    settings = {"default": None, "calib": {name: config_from_calibration(cal, estimator=name) for name in ESTIMATORS}}
+    settings = {"default": None, "calib": cal}
     if tune:
         started = time.perf_counter()
-        tuned = tune_calibration(log, cal)
+        tuned = identify_noise(log, cal)
         timings["tune_s"] = time.perf_counter() - started
-        settings["tune"] = {name: config_from_calibration(tuned, estimator=name) for name in ESTIMATORS}
+        settings["tune"] = tuned
     tables = {}
-    for setting, configs in settings.items():
-        states = run_estimators(log, configs=configs).states
+    for setting, calibration in settings.items():
+        states = replay_log(log, calibration=calibration).states
         tables[setting] = rms_errors(states, log).loc[:, list(METRICS)]
     return {"tables": tables, "timings": timings, "tau": cal.tau.tau}
 
