@@ -225,8 +225,8 @@ files = adapters.calibration_files(root, sha256, current)
 st.caption("The autopilot files hold " + ("the noise identified for full_state_indirect (EKF2 and EKF3 are "
            "error-state filters like it)" if "full_state_indirect" in current.tuning else
            "the calibrated figures (identify the noise above for the identified ones)")
-           + "; each file's header names the flight and the estimator (docs/calibration.md, 'Replaying with the "
-             "autopilot replay tools').")
+           + "; each file's header names the flight and the estimator (how to replay with them: "
+             "docs/calibration.md, 'Replaying with the autopilot replay tools').")
 columns = st.columns(len(files) + 1)
 for column, (name, text) in zip(columns, files.items(), strict=False):
     label, mime = adapters.CALIBRATION_FILES[name]
