@@ -52,7 +52,6 @@ from estimators.inputs.records import (
     OUTPUT,
     SENSOR_NAMES,
     SIDESLIP,
-    SUN,
     ZERO_VELOCITY,
     GpsRows,
     ImuSamples,
@@ -61,6 +60,7 @@ from estimators.inputs.records import (
     ReplayInputs,
     SensorPlan,
 )
+from estimators.inputs.sun_events import sun_heading_events
 from ingest.errors import InputError
 from ingest.flightlog import FlightLog
 
@@ -142,7 +142,9 @@ def build_replay_inputs(flight_log: FlightLog, config: EstimatorConfig | None = 
                                   "tilt observable; no position or velocity output")
     baro, baro_offset_m = _baro_events(flight_log, gps, origin, config, notes)
     mag = _mag_events(flight_log, heading, origin, imu, config, notes)
-    sun_part = _sun_heading_events(flight_log, heading, sun_observations, origin, source, notes)
+    sun_part = sun_heading_events(flight_log, heading, sun_observations, origin, source, notes.warnings)
+    if sun_part is not None:
+        notes.parts.append(sun_part)
     airspeed = _airspeed_events(flight_log, gps, fixed_wing, config, notes)
     _pseudo_events(t_start, t_end, fixed_wing, airspeed, gps, config, notes)
 
@@ -233,21 +235,6 @@ def _mag_events(flight_log: FlightLog, heading: str, origin: Origin, imu: ImuSam
     mag_sigma = config.noise.mag_sigma_axes or (config.noise.mag_sigma,) * 3
     notes.parts.append((mag[0], MAG, values, np.broadcast_to(np.square(mag_sigma), values.shape).copy()))
     return _Magnetometer(mag, field_ned, strength, field_source, fusion)
-
-
-def _sun_heading_events(flight_log: FlightLog, heading: str, sun_observations: pd.DataFrame | None,
-                        origin: Origin, source: str, notes: _Notes):
-    """Sun-vector events when the heading source includes the sun (the part, else None)."""
-    if heading not in ("sun", "mag+sun"):
-        return None
-    if sun_observations is None and flight_log.has("sun"):
-        sun_observations = sun_observations_from_log(flight_log, origin, notes.warnings)
-    if sun_observations is None or len(sun_observations) == 0:
-        raise InputError(f"heading {heading!r} needs sun-vector observations (a sun-device CSV with the sun "
-                         "above the horizon and a GPS fix for the ephemeris)", source=source, field="heading")
-    sun_part = _sun_events(sun_observations, source)
-    notes.parts.append(sun_part)
-    return sun_part
 
 
 def _airspeed_events(flight_log: FlightLog, gps: GpsRows | None, fixed_wing: bool, config: EstimatorConfig,
@@ -509,50 +496,6 @@ def _decimal_year(flight_log: FlightLog) -> float | None:
         return None
     t0 = float(flight_log["imu"].index[0])
     return environment.decimal_year(pd.Timestamp(t0 + offset, unit="s"))
-
-
-def sun_observations_from_log(flight_log: FlightLog, origin: Origin, warnings: list[str]) -> pd.DataFrame | None:
-    """Sun-vector observations from the log's photocell currents (:func:`estimators.sun.solver.solve_sun_log`)
-    and the sun's NED direction at the origin (NREL SPA on a 1 Hz grid, :func:`estimators.sun.prediction.sun_ned_at`).
-
-    Returns None when the log has no GPS position or no UTC time (the ephemeris needs both). Epochs without a
-    solution or with the sun below :data:`estimators.environment.MIN_SUN_ELEVATION_DEG` are dropped.
-    """
-    from estimators.sun.prediction import sun_ned_at
-    from estimators.sun.solver import solve_sun_log
-
-    if origin.source != "gps" or flight_log.meta.utc_offset_s is None:
-        warnings.append("sun heading: no GPS position or UTC time for the ephemeris; sun vector not used")
-        return None
-    solved = solve_sun_log(flight_log["sun"], device=flight_log.meta.sun_device)
-    solved = solved[solved["status"] == "ok"]
-    if solved.empty:
-        warnings.append("sun heading: no epoch with a valid sun-vector solution")
-        return None
-    time_s = solved["time_s"].to_numpy(dtype=float)
-    s_ned, elevation = sun_ned_at(flight_log, time_s, origin=(origin.lat_deg, origin.lon_deg, origin.alt_m))
-    keep = elevation > environment.MIN_SUN_ELEVATION_DEG
-    if not keep.any():
-        warnings.append("sun heading: the sun is below the horizon limit during the whole log")
-        return None
-    return pd.DataFrame({"sun_x": solved["sun_x"].to_numpy()[keep], "sun_y": solved["sun_y"].to_numpy()[keep],
-                         "sun_z": solved["sun_z"].to_numpy()[keep], "sun_n": s_ned[keep, 0], "sun_e": s_ned[keep, 1],
-                         "sun_d": s_ned[keep, 2], "sigma_rad": solved["sigma_rad"].to_numpy()[keep]},
-                        index=pd.Index(time_s[keep], name="time_s"))
-
-
-def _sun_events(observations: pd.DataFrame, source: str):
-    columns = ("sun_x", "sun_y", "sun_z", "sun_n", "sun_e", "sun_d", "sigma_rad")
-    missing = [c for c in columns if c not in observations.columns]
-    if missing:
-        raise InputError(f"sun observations lack columns {missing}", source=source, field="sun")
-    time_s = observations.index.to_numpy(dtype=float)
-    data = observations.loc[:, list(columns)].to_numpy(dtype=float)
-    keep = np.isfinite(time_s) & np.isfinite(data).all(axis=1) & (data[:, 6] > 0)
-    time_s, data = time_s[keep], data[keep]
-    variances = np.zeros((len(time_s), 2))
-    variances[:, 0] = variances[:, 1] = data[:, 6] ** 2
-    return time_s, SUN, data[:, :6], variances
 
 
 def _check_epoch_count(t_start: float, t_end: float, rate_hz: float, n_imu: int, source: str) -> None:
