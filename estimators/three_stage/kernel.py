@@ -16,10 +16,12 @@ docs/estimators.md, 'Scheduling rule'), built once per run by :func:`estimators.
 * ``PERIODIC``: the stage-1 accelerometer update at ``accel_update_rate_hz``, with the specific force and the rates
   averaged over the update interval.
 
-The stage steps are in :mod:`estimators.three_stage.stages`. Filter quantities per stage (kernel arrays): ``x``
-state, ``P`` covariance (prior before, posterior after each scalar update), innovation ``nu``, its variance ``S``,
-``NIS = nu^2 / S``. Every scalar update is a diagnostics row; the innovations of whitened vector updates
-(magnetometer, sun, wind) are in whitened units (R = 1).
+The loop only dispatches: the decisions when to fuse, start, reset or re-initialise are the per-sensor control
+functions of :mod:`estimators.three_stage.control`, the fusion (stage steps) is in
+:mod:`estimators.three_stage.stages` (docs/three_stage.md, 'Control and fusion'). Filter quantities per stage
+(kernel arrays): ``x`` state, ``P`` covariance (prior before, posterior after each scalar update), innovation
+``nu``, its variance ``S``, ``NIS = nu^2 / S``. Every scalar update is a diagnostics row; the innovations of
+whitened vector updates (magnetometer, sun, wind) are in whitened units (R = 1).
 
 There is no separate NumPy twin: run with ``NUMBA_DISABLE_JIT=1`` (a fresh process), the same code is the plain
 Python/NumPy reference the twin test compares the compiled kernel with.
@@ -34,24 +36,24 @@ import numpy as np
 from numba import njit
 
 from estimators.core import linalg, reacquisition, recorder, rotations
-from estimators.core.recorder import C_GPS_RESETS, C_OUTPUTS, N_SHARED_COUNTERS
+from estimators.core.recorder import C_OUTPUTS, Recorder
 from estimators.core.schedule import COVARIANCE, PERIODIC, PROPAGATE
 from estimators.inputs.records import AIRSPEED, BARO, GPS_POS, GPS_VEL, MAG, OUTPUT, SUN
-from estimators.three_stage.model import I_DEVIATION, corrected_heading
-from estimators.three_stage.stages import (
-    accumulate,
-    check_health,
-    flush_stage1,
-    flush_stage3,
-    propagate_states,
-    repair,
-    stage1_update,
-    stage2_update,
-    stage3_fw_wind,
-    stage3_gps_position,
-    stage3_gps_velocity,
-    stage3_init_velocity,
+from estimators.three_stage.control import (
+    HELD_HEIGHT,
+    HELD_VERTICAL_SPEED,
+    accel_control,
+    airspeed_input,
+    fresh_airspeed,
+    gps_position_control,
+    gps_velocity_control,
+    gps_velocity_input,
+    heading_control,
+    height_input,
+    held_inputs,
 )
+from estimators.three_stage.model import I_DEVIATION, corrected_heading
+from estimators.three_stage.stages import accumulate, check_health, flush_stage1, flush_stage3, propagate_states
 
 #: Columns of the kernel's output array (angles [rad], positions [m], speeds [m/s]; ``*_std`` 1-sigma).
 OUT_COLUMNS = ("time_s", "roll", "pitch", "yaw", "pn", "pe", "pd", "vn", "ve", "vd", "wn", "we",
@@ -59,15 +61,6 @@ OUT_COLUMNS = ("time_s", "roll", "pitch", "yaw", "pn", "pe", "pd", "vn", "ve", "
 (O_TIME, O_ROLL, O_PITCH, O_YAW, O_PN, O_PE, O_PD, O_VN, O_VE, O_VD, O_WN, O_WE, O_ROLL_STD, O_PITCH_STD, O_YAW_STD,
  O_PN_STD, O_PE_STD, O_VN_STD, O_VE_STD, O_WN_STD, O_WE_STD) = range(len(OUT_COLUMNS))
 
-# kernel counters: the shared slots of estimators.core.recorder (C_DIAG .. C_OUTPUTS), then this filter's
-C_PITCH_GUARD = N_SHARED_COUNTERS  # attitude updates skipped at the Euler singularity
-C_HEADING_RESETS = N_SHARED_COUNTERS + 1  # stage-2 heading re-acquisitions
-N_COUNTERS = N_SHARED_COUNTERS + 2
-
-#: Attitude updates are skipped beyond this pitch (Euler singularity) [rad].
-PITCH_GUARD_RAD = math.radians(85.0)
-#: An airspeed or GPS value older than this is stale: no centripetal term, no wind pseudo, no GPS acceleration [s].
-STALE_AFTER_S = 1.0
 #: Variance floor of the covariance repair.
 MIN_VARIANCE = 1e-12
 
@@ -153,6 +146,47 @@ class MeasurementWork(NamedTuple):
     no_accel: np.ndarray  # (3,) zero NED acceleration (gravity-only stage-1 model)
 
 
+class StageStates(NamedTuple):
+    """The states and covariances of the three stages (the kernel's in/out arrays, bundled for the loop's
+    helpers)."""
+
+    x1: np.ndarray  # (2,) roll, pitch [rad]
+    P1: np.ndarray  # (2, 2)
+    x2: np.ndarray  # (1,) heading [rad]
+    P2: np.ndarray  # (1, 1)
+    x3: np.ndarray  # (n3,) navigation states (estimators.three_stage.model)
+    P3: np.ndarray  # (n3, n3)
+
+
+class KernelWork(NamedTuple):
+    """Preallocated arrays of one run besides the stage states: the kernel loop allocates nothing per sample."""
+
+    w1: StageWork
+    w2: StageWork
+    w3: StageWork
+    mw: MeasurementWork
+    x1_safe: np.ndarray  # (2,) last healthy states (divergence check)
+    x2_safe: np.ndarray  # (1,)
+    x3_safe: np.ndarray  # (n3,)
+    rates: np.ndarray  # (3,) bias-corrected gyro of the IMU row [rad/s]
+    f_b: np.ndarray  # (3,) specific force of the IMU row [m/s^2]
+    variances: np.ndarray  # (n_values,) event variances raised to the model-error floor
+    # input sums (dt, omega dt, f dt, V_a dt) of the accelerometer update interval and of the deferred stage-1
+    # and stage-3 covariance propagations, with the states and attitude at the start of those intervals
+    acc_meas: np.ndarray  # (8,)
+    acc1: np.ndarray  # (8,)
+    acc3: np.ndarray  # (8,)
+    x1_start: np.ndarray  # (2,)
+    x3_start: np.ndarray  # (n3,)
+    attitude_start: np.ndarray  # (3,) roll, pitch, stage-2 heading [rad]
+    gps_vel: np.ndarray  # (3,) last GPS velocity NED [m/s]
+    gps_acc: np.ndarray  # (3,) low-passed NED acceleration from the GPS velocity [m/s^2]
+    gps_pos: np.ndarray  # (2,) last GPS north, east [m] (start of stage 3)
+    gps_pos_var: np.ndarray  # (2,) their variances [m^2]
+    gps_mon: np.ndarray  # GPS re-acquisition monitor (estimators.core.reacquisition), armed when stage 3 starts
+    row: np.ndarray  # (len(OUT_COLUMNS),) output row scratch
+
+
 @njit(cache=True)
 def _stage_work(n, n_inputs, n_u):
     """Work arrays of a stage with ``n`` states, ``n_inputs`` noisy inputs and ``n_u`` model inputs."""
@@ -171,9 +205,14 @@ def _measurement_work():
 
 
 @njit(cache=True)
-def _lowpass(value, sample, dt, tau):
-    """One step of a first-order low-pass with time constant ``tau`` over ``dt`` (exact for a held sample)."""
-    return value + (1.0 - math.exp(-dt / tau)) * (sample - value)
+def _kernel_work(x1, x2, x3, n_values, n_columns):
+    """Work arrays of a run with the initial stage states ``x1, x2, x3``, ``n_values`` event values and
+    ``n_columns`` output columns."""
+    n3 = x3.shape[0]
+    return KernelWork(_stage_work(2, 3, 3), _stage_work(1, 3, 3), _stage_work(n3, 2, 6), _measurement_work(),
+                      x1.copy(), x2.copy(), x3.copy(), np.empty(3), np.empty(3), np.empty(n_values), np.zeros(8),
+                      np.zeros(8), np.zeros(8), x1.copy(), x3.copy(), np.zeros(3), np.zeros(3), np.zeros(3),
+                      np.zeros(2), np.zeros(2), reacquisition.gps_monitor(), np.empty(n_columns))
 
 
 @njit(cache=True, inline="always")
@@ -216,6 +255,51 @@ def _output_row(t, x1, P1, x2, P2, x3, P3, stage3_on, fixed_wing_nav, height, ve
         row[O_VE_STD] = math.sqrt(P3[3, 3])
 
 
+@njit(cache=True, inline="always")
+def _propagate(dt, imu_gyro, imu_accel, k, va, prm, st, stage3_on, w):
+    """``PROPAGATE``: the states over ``dt`` [s] with IMU row ``k`` (gyro [rad/s], accelerometer [m/s^2]) and
+    the airspeed ``va`` [m/s] held; the inputs summed for the accelerometer update and the deferred covariances
+    (their start states kept when an interval begins)."""
+    rates, f_b = w.rates, w.f_b
+    for i in range(3):
+        rates[i] = imu_gyro[k, i] - prm.gyro_bias_rad_s[i]
+        f_b[i] = imu_accel[k, i]
+    if w.acc1[0] == 0.0:
+        w.x1_start[:] = st.x1
+    if stage3_on and w.acc3[0] == 0.0:
+        w.x3_start[:] = st.x3
+        w.attitude_start[0], w.attitude_start[1], w.attitude_start[2] = st.x1[0], st.x1[1], st.x2[0]
+    propagate_states(dt, rates, f_b, va, prm, st.x1, st.x2, st.P2, st.x3, stage3_on)
+    accumulate(w.acc_meas, dt, rates, f_b, va)
+    accumulate(w.acc1, dt, rates, f_b, va)
+    if stage3_on:
+        accumulate(w.acc3, dt, rates, f_b, va)
+
+
+@njit(cache=True, inline="always")
+def _flush(prm, st, stage3_on, w):
+    """``COVARIANCE``: the deferred covariance propagation of stage 1 and, once it runs, stage 3."""
+    w1, w3 = w.w1, w.w3
+    flush_stage1(w.acc1, w.x1_start, st.P1, prm, w1.A, w1.G, w1.F, w1.Q, w1.W, w1.u, w1.values, w1.cols, w1.counts,
+                 w1.columns)
+    if stage3_on:
+        flush_stage3(w.acc3, w.x3_start, w.attitude_start, st.P1, st.P2, st.P3, prm, w3.A, w3.G, w3.F, w3.Q, w3.W,
+                     w3.u, w3.input_var, w3.values, w3.cols, w3.counts, w3.columns)
+
+
+@njit(cache=True, inline="always")
+def _output(t, prm, st, stage3_on, held, w, out, n_out, counters):
+    """``OUTPUT`` at ``t`` [s]: the divergence check (never a non-finite output row: reset to the last healthy
+    state), then output row ``n_out``."""
+    check_health(st.x1, st.P1, w.x1_safe, prm.p1_0, counters)
+    check_health(st.x2, st.P2, w.x2_safe, prm.p2_0, counters)
+    if stage3_on:
+        check_health(st.x3, st.P3, w.x3_safe, prm.p3_0, counters)
+    _output_row(t, st.x1, st.P1, st.x2, st.P2, st.x3, st.P3, stage3_on, prm.fixed_wing_nav, held[HELD_HEIGHT],
+                held[HELD_VERTICAL_SPEED], w.row)
+    recorder.record_output(out, n_out, w.row)
+
+
 @njit(cache=True, nogil=True)  # the replays of noise identification run in threads
 def run_kernel(op, op_value, op_index, imu_t, imu_gyro, imu_accel, ev_kind, ev_val, ev_var, prm, x1, P1, x2, P2,
                x3, P3, out, diag_f, diag_i, counters):
@@ -241,179 +325,48 @@ def run_kernel(op, op_value, op_index, imu_t, imu_gyro, imu_accel, ev_kind, ev_v
         Diagnostics recorder arrays (:mod:`estimators.core.recorder`).
     counters : int64 (N_COUNTERS,)
     """
-    n3 = x3.shape[0]
-    w1, w2, w3 = _stage_work(2, 3, 3), _stage_work(1, 3, 3), _stage_work(n3, 2, 6)
-    mw = _measurement_work()
-    x1_safe, x2_safe, x3_safe = x1.copy(), x2.copy(), x3.copy()
-    row = np.empty(out.shape[1])
-    rates, f_b = np.empty(3), np.empty(3)  # bias-corrected gyro and specific force of the IMU row
-    variances = np.empty(ev_var.shape[1])  # event variances raised to the model-error floor
+    st = StageStates(x1, P1, x2, P2, x3, P3)
+    w = _kernel_work(x1, x2, x3, ev_var.shape[1], out.shape[1])
+    rec = Recorder(diag_f, diag_i, counters)
+    held = held_inputs(prm.initial_height_m)
     stage3_on = False
-    # input sums (dt, omega dt, f dt, V_a dt) of the accelerometer update interval and of the deferred stage-1 and
-    # stage-3 covariance propagations, with the states and attitude at the start of those intervals
-    acc_meas, acc1, acc3 = np.zeros(8), np.zeros(8), np.zeros(8)
-    x1_start, x3_start, attitude_start = x1.copy(), x3.copy(), np.zeros(3)
-    # low-passed inputs and their sample times
-    va, va_t = 0.0, -math.inf
-    height, height_t = prm.initial_height_m, -math.inf
-    vertical_speed = 0.0 if math.isfinite(height) else math.nan
-    gps_vel, gps_vel_t = np.zeros(3), -math.inf
-    gps_acc = np.zeros(3)
-    gps_pos, gps_pos_var = np.zeros(2), np.zeros(2)
-    gps_pos_t = -math.inf
-    gps_mon = reacquisition.gps_monitor()  # re-acquisition rule, armed when stage 3 starts
     heading_rejected_since = math.inf  # start of the current streak of gated-out heading vectors
-    P2_reset = P2[0, 0]  # the alignment's heading variance, given to a re-acquired heading
+    heading_var_reset = P2[0, 0]  # the alignment's heading variance, given to a re-acquired heading
     n_out = 0
     t = imu_t[0] if imu_t.shape[0] > 0 else 0.0
     for s in range(op.shape[0]):
         code = op[s]
         if code == PROPAGATE:
             k = op_index[s]
-            dt = op_value[s]
-            for i in range(3):
-                rates[i] = imu_gyro[k, i] - prm.gyro_bias_rad_s[i]
-                f_b[i] = imu_accel[k, i]
-            va_in = va if t - va_t < STALE_AFTER_S else 0.0
-            if acc1[0] == 0.0:
-                x1_start[:] = x1
-            if stage3_on and acc3[0] == 0.0:
-                x3_start[:] = x3
-                attitude_start[0], attitude_start[1], attitude_start[2] = x1[0], x1[1], x2[0]
-            propagate_states(dt, rates, f_b, va_in, prm, x1, x2, P2, x3, stage3_on)
-            accumulate(acc_meas, dt, rates, f_b, va_in)
-            accumulate(acc1, dt, rates, f_b, va_in)
-            if stage3_on:
-                accumulate(acc3, dt, rates, f_b, va_in)
+            _propagate(op_value[s], imu_gyro, imu_accel, k, fresh_airspeed(t, held), prm, st, stage3_on, w)
             # a step ends at its row's time, or at the time of the event that follows it (the EVENT sets t)
             t = imu_t[k]
             continue
         t = op_value[s]
         if code == COVARIANCE:
-            flush_stage1(acc1, x1_start, P1, prm, w1.A, w1.G, w1.F, w1.Q, w1.W, w1.u,
-                         w1.values, w1.cols, w1.counts, w1.columns)
-            if stage3_on:
-                flush_stage3(acc3, x3_start, attitude_start, P1, P2, P3, prm, w3.A, w3.G, w3.F, w3.Q, w3.W, w3.u,
-                             w3.input_var, w3.values, w3.cols, w3.counts, w3.columns)
-            continue
-        if code == PERIODIC:
-            # stage 1 at the accelerometer update rate, with the inputs averaged over the interval
-            if acc_meas[0] > 0.0:
-                if abs(x1[1]) > PITCH_GUARD_RAD:
-                    counters[C_PITCH_GUARD] += 1
-                else:
-                    use_gps_acc = prm.gps_acceleration and t - gps_vel_t < STALE_AFTER_S
-                    accel_n = gps_acc if use_gps_acc else mw.no_accel
-                    mean = mw.mean
-                    for i in range(8):
-                        mean[i] = acc_meas[i] / acc_meas[0]
-                    stage1_update(t, mean[4:7], mean[1:4], mean[7], accel_n, prm, x1, P1, x2, w1, mw, diag_f,
-                                  diag_i, counters)
-                    repair(P1, prm.max_var1, w1, counters)
-                acc_meas[:] = 0.0
-            continue
-        # EVENT
-        ie = op_index[s]
-        kind = ev_kind[ie]
-        values = ev_val[ie]
-        for i in range(variances.shape[0]):
-            variances[i] = np.maximum(ev_var[ie, i], prm.variance_floor[kind])
-        if kind == OUTPUT:
-            # divergence check at the output rate: never a non-finite output row (reset to the last healthy)
-            check_health(x1, P1, x1_safe, prm.p1_0, counters)
-            check_health(x2, P2, x2_safe, prm.p2_0, counters)
-            if stage3_on:
-                check_health(x3, P3, x3_safe, prm.p3_0, counters)
-            _output_row(t, x1, P1, x2, P2, x3, P3, stage3_on, prm.fixed_wing_nav, height, vertical_speed, row)
-            recorder.record_output(out, n_out, row)
-            n_out += 1
-        elif kind == AIRSPEED:
-            va = values[0] if t - va_t > STALE_AFTER_S else _lowpass(va, values[0], t - va_t, prm.airspeed_lpf_s)
-            va_t = t
-        elif kind == BARO or (kind == GPS_POS and prm.height_from_gps):
-            sample = values[0] if kind == BARO else -values[2]
-            if height_t == -math.inf:  # first sample
-                height, vertical_speed = sample, 0.0
-            else:
-                rate = (sample - height) / prm.baro_lpf_s  # rate of the first-order filter
-                height = _lowpass(height, sample, t - height_t, prm.baro_lpf_s)
-                vertical_speed = _lowpass(vertical_speed, rate, t - height_t, prm.vertical_speed_lpf_s)
-            height_t = t
-        if kind in (MAG, SUN):
-            if abs(x1[1]) > PITCH_GUARD_RAD:
-                counters[C_PITCH_GUARD] += 1
-            else:
-                gated, heading = stage2_update(t, kind, values, variances, prm, x1, P1, x2, P2, w2, mw, diag_f,
-                                               diag_i, counters)
-                if gated:
-                    heading_rejected_since = math.inf
-                elif heading_rejected_since == math.inf:
-                    heading_rejected_since = t
-                elif t - heading_rejected_since >= prm.gps_reset_after_s and math.isfinite(heading):
-                    # heading re-acquisition, the rule of the GPS (docs/estimators.md, 'GPS re-acquisition'):
-                    # every vector rejected for T_rej means the heading, not the sensor, is wrong; restart from
-                    # the measured heading
-                    x2[0] = heading
-                    P2[0, 0] = P2_reset
-                    heading_rejected_since = math.inf
-                    counters[C_HEADING_RESETS] += 1
-                repair(P2, prm.max_var2, w2, counters)
-        elif kind == GPS_POS:
-            gps_pos_t = t
-            gps_pos[:] = values[:2]
-            gps_pos_var[:] = variances[:2]
-            reset, counted = False, False
-            if stage3_on:
-                reset, counted = reacquisition.gps_reset_due(gps_mon, True, t, prm.gps_reset_after_s,
-                                                             prm.gps_outage_reset_s)
-            if reset:
-                # re-acquisition: position (and velocity, at its event) to GPS, variances to R, cross-covariances
-                # zeroed (docs/estimators.md, 'GPS re-acquisition')
-                for i in range(2):
-                    x3[i] = values[i]
-                    for j in range(n3):
-                        P3[i, j] = 0.0
-                        P3[j, i] = 0.0
-                    P3[i, i] = variances[i]
-                if counted:
-                    counters[C_GPS_RESETS] += 1
-            elif stage3_on:
-                if prm.fixed_wing_nav and t - va_t < STALE_AFTER_S:
-                    stage3_fw_wind(t, va, gps_vel[2], prm, x2, P2, x3, P3, w3, mw, diag_f, diag_i, counters)
-                stage3_gps_position(t, values, variances, prm, x3, P3, w3, gps_mon, diag_f, diag_i, counters)
-                repair(P3, prm.max_var3, w3, counters)
-        elif kind == GPS_VEL:
-            dt_gps = t - gps_vel_t
-            if 0.0 < dt_gps < STALE_AFTER_S:
-                for i in range(3):
-                    gps_acc[i] = _lowpass(gps_acc[i], (values[i] - gps_vel[i]) / dt_gps, dt_gps,
-                                          prm.gps_acceleration_lpf_s)
-            else:
-                gps_acc[:] = 0.0
-            gps_vel[:] = values[:3]
-            gps_vel_t = t
-            if not stage3_on:
-                fast = math.hypot(values[0], values[1]) > prm.min_ground_speed_m_s
-                if gps_pos_t == t and (fast or not prm.fixed_wing_nav):
-                    # start of stage 3 at this GPS epoch: position (from its GPS_POS event) and velocity
-                    x3[:] = 0.0
-                    P3[:, :] = prm.p3_0
-                    for i in range(2):
-                        x3[i] = gps_pos[i]
-                        P3[i, i] = max(P3[i, i], gps_pos_var[i])
-                    stage3_init_velocity(values, variances, prm, x3, P3)
-                    x3_safe[:] = x3
-                    acc3[:] = 0.0
-                    stage3_on = True
-                    reacquisition.gps_acquired(gps_mon, t)
-            else:
-                reset, counted = reacquisition.gps_reset_due(gps_mon, False, t, prm.gps_reset_after_s,
-                                                             prm.gps_outage_reset_s)
-                if reset:
-                    stage3_init_velocity(values, variances, prm, x3, P3)
-                    if counted:
-                        counters[C_GPS_RESETS] += 1
-                else:
-                    stage3_gps_velocity(t, values, variances, prm, x3, P3, w3, gps_mon, diag_f, diag_i, counters)
-                    repair(P3, prm.max_var3, w3, counters)
+            _flush(prm, st, stage3_on, w)
+        elif code == PERIODIC:
+            accel_control(t, prm, st, held, w, rec)
+        else:  # EVENT
+            ie = op_index[s]
+            kind = ev_kind[ie]
+            values = ev_val[ie]
+            variances = w.variances
+            for i in range(variances.shape[0]):
+                variances[i] = np.maximum(ev_var[ie, i], prm.variance_floor[kind])
+            if kind == OUTPUT:
+                _output(t, prm, st, stage3_on, held, w, out, n_out, counters)
+                n_out += 1
+            elif kind == AIRSPEED:
+                airspeed_input(t, values[0], prm, held)
+            elif kind == BARO or (kind == GPS_POS and prm.height_from_gps):
+                height_input(t, values[0] if kind == BARO else -values[2], prm, held)
+            if kind in (MAG, SUN):
+                heading_rejected_since = heading_control(t, kind, values, variances, prm, st, heading_var_reset,
+                                                         heading_rejected_since, w, rec)
+            elif kind == GPS_POS:
+                gps_position_control(t, values, variances, prm, st, stage3_on, held, w, rec)
+            elif kind == GPS_VEL:
+                gps_velocity_input(t, values, prm, held, w)
+                stage3_on = gps_velocity_control(t, values, variances, prm, st, stage3_on, held, w, rec)
     counters[C_OUTPUTS] = n_out
