@@ -24,10 +24,10 @@ updates.
   :mod:`estimators.indirect.measurements`). Within a group the error estimate accumulates with the linearised
   innovation ``z - h(x_hat) - H dx`` (eq 49 corrected); then ``x_hat <- x_hat (+) dx``, ``P <- G P G^T`` with
   ``G_thth = I - [dtheta/2]x`` and ``dx <- 0`` (docs/indirect.md, 'Injection and reset'; ``inject_scalar``: after
-  every scalar). Control apart from fusion (docs/indirect.md, 'Control and fusion'): :func:`gps_control`, the
-  GPS (re)acquisition, resets the position or velocity (:func:`reset_to_gps`, docs/estimators.md, 'GPS
-  re-acquisition') and :func:`wind_control` (re)starts the wind (:func:`initialise_wind`) instead of the fusion
-  :func:`_fuse`.
+  every scalar). Control apart from fusion (docs/indirect.md, 'Control and fusion'): the GPS (re)acquisition
+  rule (:func:`estimators.core.reacquisition.gps_control`, docs/estimators.md, 'GPS re-acquisition') and
+  :func:`wind_control` decide whether an event resets the position or velocity (:func:`reset_to_gps`) or
+  (re)starts the wind (:func:`initialise_wind`) instead of the fusion :func:`_fuse`.
 
 Filter quantities (kernel arrays): ``x`` (NX,) nominal state, ``P`` (n, n) error covariance over the active error
 states ``sel`` (prior before, posterior after an update), ``nu`` innovation, ``S`` innovation variance,
@@ -287,33 +287,17 @@ def _write_output(out_f, out_sd, row, t, x, P):
 
 # ----------------------------------------------------------------------------------------------------------------
 # control: when a measurement is fused, and when states are reset or re-initialised instead (docs/indirect.md,
-# 'Control and fusion'); one call site each, inline="always" (no call: no reference-count pair per argument)
+# 'Control and fusion'): wind_control and the shared GPS rule estimators.core.reacquisition.gps_control decide,
+# the loop resets (reset_to_gps, initialise_wind) or fuses (_fuse)
 
 
 @njit(cache=True, inline="always")
-def gps_control(x, P, kind, values, variances, t, gyro, settings, gps_mon, move_wind, w, counters):
-    """GPS (re)acquisition at a ``GPS_POS`` / ``GPS_VEL`` event at ``t`` [s] (the shared rule,
-    :func:`estimators.core.reacquisition.gps_control`): position or velocity reset to the GPS
-    (:func:`reset_to_gps`; ``move_wind``: wind states active and the last airspeed update accepted). Returns
-    whether the event was a reset (not to be fused)."""
-    if not reacquisition.gps_control(gps_mon, kind, t, settings.gps_reject_s, settings.gps_outage_s, counters):
-        return False
-    reset_to_gps(x, P, kind, values, variances, settings.field_ned, settings.lever_arm_m, gyro, settings.sel,
-                 move_wind, w.H_full, w.block3, w.T, w.work)
-    return True
-
-
-@njit(cache=True, inline="always")
-def wind_control(x, P, airspeed_m_s, aw, settings, w, counters):
-    """Wind (re)start at an airspeed event (wind states active, ``aw`` the active index of ``E_W``): at the first
-    airspeed of the flight, or when the wind has the aircraft flying backwards (:func:`air_flows_backwards`; no
-    update can leave that mirrored solution, it fits airspeed and sideslip as well), the wind starts again from the
-    airspeed (:func:`initialise_wind`). Returns whether it did (the airspeed is then not fused)."""
-    if not (counters[C_WIND_INITS] == 0 or air_flows_backwards(x)):
-        return False
-    initialise_wind(x, P, airspeed_m_s, aw, settings.P0, w.block3[:2, :2])
-    counters[C_WIND_INITS] += 1
-    return True
+def wind_control(x, n_wind_inits):
+    """Wind (re)start at an airspeed event (wind states active): at the first airspeed of the flight
+    (``n_wind_inits`` = 0), or when the wind has the aircraft flying backwards (:func:`air_flows_backwards`; no
+    update can leave that mirrored solution, it fits airspeed and sideslip as well), the wind starts again from
+    the airspeed (:func:`initialise_wind`) instead of fusing it."""
+    return n_wind_inits == 0 or air_flows_backwards(x)
 
 
 # ----------------------------------------------------------------------------------------------------------------
@@ -449,10 +433,15 @@ def run_kernel(imu_gyro, imu_accel, ev_kind, ev_imu, ev_val, ev_var, op, op_dt, 
                 n_out += 1
                 continue
             gyro = imu_gyro[min(ev_imu[j], last_row)]  # the rate of the event's IMU interval
-            if kind in (GPS_POS, GPS_VEL) and gps_control(x, P, kind, values, ev_var[j], t, gyro, s, gps_mon,
-                                                          air_ok and wind_active, w, counters):
+            if kind in (GPS_POS, GPS_VEL) and reacquisition.gps_control(gps_mon, kind, t, s.gps_reject_s,
+                                                                        s.gps_outage_s, counters):
+                # (re)acquisition: position or velocity to the GPS, the wind moved along when the airspeed agreed
+                reset_to_gps(x, P, kind, values, ev_var[j], s.field_ned, s.lever_arm_m, gyro, s.sel,
+                             air_ok and wind_active, w.H_full, w.block3, w.T, w.work)
                 continue
-            if kind == AIRSPEED and wind_active and wind_control(x, P, values[0], aw, s, w, counters):
+            if kind == AIRSPEED and wind_active and wind_control(x, counters[C_WIND_INITS]):
+                initialise_wind(x, P, values[0], aw, s.P0, w.block3[:2, :2])
+                counters[C_WIND_INITS] += 1
                 air_ok = True
                 continue
             accepted = _fuse(x, P, t, kind, values, ev_var[j], gyro, s, w, gps_mon, rec)

@@ -4,74 +4,70 @@ re-initialised instead (PX4 EKF2's ``*_control.cpp``); the fusion itself (innova
 
 Per sensor, called by :func:`estimators.three_stage.kernel.run_kernel` at its events:
 
-* :func:`accel_control` (``PERIODIC``): the stage-1 accelerometer update with the inputs averaged over the
-  update interval, skipped at the Euler singularity;
-* :func:`heading_control` (magnetometer, sun): the stage-2 update, and the heading re-acquisition by the shared
-  rejection rule of :mod:`estimators.core.reacquisition`;
-* :func:`gps_position_control`, :func:`gps_velocity_control`: the start of stage 3 at the first GPS epoch
-  (:func:`stage3_start`), the GPS re-acquisition (:func:`estimators.core.reacquisition.gps_control`), else the
-  wind pseudo-measurement and the GPS updates;
+* :func:`accel_control` (``PERIODIC``): whether the stage-1 accelerometer update runs (inputs summed over the
+  update interval, :func:`attitude_update_allowed`: not at the Euler singularity) and with which acceleration;
+* :func:`heading_control` (magnetometer, sun): after the stage-2 update (when :func:`attitude_update_allowed`), the
+  heading re-acquisition by the shared rejection rule of :mod:`estimators.core.reacquisition`;
+* :func:`gps_position_control`, :func:`gps_velocity_control`, :func:`wind_pseudo_due`: the start of stage 3 at
+  the first GPS epoch (:func:`stage3_start`), the GPS re-acquisition
+  (:func:`estimators.core.reacquisition.gps_control`), else the GPS updates and the wind pseudo-measurement;
 * :func:`airspeed_input`, :func:`height_input`, :func:`gps_velocity_input`: the low-passed inputs the stages
-  read (held in the slots ``HELD_*`` of one float64 array, :func:`held_inputs`).
+  read (:class:`HeldInputs`, scalars passed by value).
 
-Arguments: ``prm`` :class:`~estimators.three_stage.kernel.KernelParams`, ``st`` the stage states
-(:class:`~estimators.three_stage.kernel.StageStates`), ``w`` the run's work arrays
-(:class:`~estimators.three_stage.kernel.KernelWork`), ``rec`` the recorder arrays
-(:class:`~estimators.core.recorder.Recorder`). Every function here has one call site and is ``inline="always"``:
-the loop pays no call (a numba call keeps a reference-count pair per array argument) and compiles the same code.
+Arguments: ``prm`` :class:`~estimators.three_stage.kernel.KernelParams`, ``gps`` the held GPS data
+(:class:`~estimators.three_stage.kernel.GpsWork`), ``held`` the held inputs. Every function here has one call site
+and is ``inline="always"``: the loop pays no call and compiles the same code. Every array an inlined call receives
+(loose or in a tuple) still costs a reference-count pair per call (0.1 us per sample when a control wrapped its
+fusion), so the controls decide (and reset or start) and the loop calls the fusion with the arrays it holds.
 """
 
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
-import numpy as np
 from numba import njit
 
 from estimators.core import reacquisition
 from estimators.core.recorder import N_SHARED_COUNTERS
 from estimators.inputs.records import GPS_POS, GPS_VEL
-from estimators.three_stage.stages import (
-    repair,
-    stage1_update,
-    stage2_update,
-    stage3_fw_wind,
-    stage3_gps_position,
-    stage3_gps_velocity,
-    stage3_init_velocity,
-)
+from estimators.three_stage.stages import stage3_init_velocity
 
 # kernel counters: the shared slots of estimators.core.recorder (C_DIAG .. C_OUTPUTS), then this filter's
 C_PITCH_GUARD = N_SHARED_COUNTERS  # attitude updates skipped at the Euler singularity
 C_HEADING_RESETS = N_SHARED_COUNTERS + 1  # stage-2 heading re-acquisitions
 N_COUNTERS = N_SHARED_COUNTERS + 2
 
+# actions of gps_velocity_control
+GPS_NONE = 0  # stage 3 not running, not started
+GPS_START = 1  # start stage 3
+GPS_RESET = 2  # re-acquisition: velocity to the GPS
+GPS_FUSE = 3  # velocity update
+
 #: Attitude updates are skipped beyond this pitch (Euler singularity) [rad].
 PITCH_GUARD_RAD = math.radians(85.0)
 #: An airspeed or GPS value older than this is stale: no centripetal term, no wind pseudo, no GPS acceleration [s].
 STALE_AFTER_S = 1.0
 
-# slots of the held-input array: low-passed true airspeed [m/s], barometric (or GPS) height above the origin [m]
-# and its rate [m/s], and the times [s] of the last airspeed, height, GPS velocity and GPS position samples
-HELD_VA = 0
-HELD_VA_T = 1
-HELD_HEIGHT = 2
-HELD_HEIGHT_T = 3
-HELD_VERTICAL_SPEED = 4
-HELD_GPS_VEL_T = 5
-HELD_GPS_POS_T = 6
-N_HELD = 7
+class HeldInputs(NamedTuple):
+    """The low-passed inputs the stages read and the times [s] of the last samples: scalars, passed by value (an
+    input step returns a new one), so that the loop passes no array for them."""
+
+    va_m_s: float  # low-passed true airspeed
+    va_t: float
+    height_m: float  # low-passed barometric (or GPS) height above the origin (NaN: no height source)
+    height_t: float
+    vertical_speed_m_s: float  # low-passed rate of the height
+    gps_vel_t: float
+    gps_pos_t: float
 
 
 @njit(cache=True)
 def held_inputs(initial_height_m):
     """The held inputs before the first sample: no airspeed, the height ``initial_height_m`` [m] (NaN: no height
     source, and no vertical speed), no GPS."""
-    held = np.full(N_HELD, -math.inf)
-    held[HELD_VA] = 0.0
-    held[HELD_HEIGHT] = initial_height_m
-    held[HELD_VERTICAL_SPEED] = 0.0 if math.isfinite(initial_height_m) else math.nan
-    return held
+    return HeldInputs(0.0, -math.inf, initial_height_m, -math.inf,
+                      0.0 if math.isfinite(initial_height_m) else math.nan, -math.inf, -math.inf)
 
 
 @njit(cache=True)
@@ -80,126 +76,122 @@ def _lowpass(value, sample, dt, tau):
     return value + (1.0 - math.exp(-dt / tau)) * (sample - value)
 
 
-@njit(cache=True, inline="always")
-def fresh_airspeed(t, held):
-    """The held true airspeed [m/s] at ``t`` [s], 0 when stale (no centripetal term)."""
-    return held[HELD_VA] if t - held[HELD_VA_T] < STALE_AFTER_S else 0.0
-
-
 # ----------------------------------------------------------------------------------------------------------------
 # inputs
 
 
 @njit(cache=True, inline="always")
-def airspeed_input(t, airspeed_m_s, prm, held):
-    """An airspeed sample at ``t`` [s]: low-passed (restarted after a stale gap)."""
-    va, va_t = held[HELD_VA], held[HELD_VA_T]
-    held[HELD_VA] = airspeed_m_s if t - va_t > STALE_AFTER_S else _lowpass(va, airspeed_m_s, t - va_t,
-                                                                           prm.airspeed_lpf_s)
-    held[HELD_VA_T] = t
+def airspeed_input(t, airspeed_m_s, lpf_s, held):
+    """An airspeed sample at ``t`` [s]: low-passed with the time constant ``lpf_s`` [s] (restarted after a stale
+    gap). Returns the new :class:`HeldInputs`."""
+    va = airspeed_m_s if t - held.va_t > STALE_AFTER_S else _lowpass(held.va_m_s, airspeed_m_s, t - held.va_t, lpf_s)
+    return HeldInputs(va, t, held.height_m, held.height_t, held.vertical_speed_m_s, held.gps_vel_t, held.gps_pos_t)
 
 
 @njit(cache=True, inline="always")
-def height_input(t, sample_m, prm, held):
+def height_input(t, sample_m, lpf_s, rate_lpf_s, held):
     """A height sample [m] above the origin at ``t`` [s] (barometer, or GPS without one): the low-passed height
-    and vertical speed of the output."""
-    height, height_t = held[HELD_HEIGHT], held[HELD_HEIGHT_T]
+    (time constant ``lpf_s`` [s]) and vertical speed (``rate_lpf_s`` [s]) of the output. Returns the new
+    :class:`HeldInputs`."""
+    height, height_t = held.height_m, held.height_t
     if height_t == -math.inf:  # first sample
-        held[HELD_HEIGHT], held[HELD_VERTICAL_SPEED] = sample_m, 0.0
+        height, vertical_speed = sample_m, 0.0
     else:
-        rate = (sample_m - height) / prm.baro_lpf_s  # rate of the first-order filter
-        held[HELD_HEIGHT] = _lowpass(height, sample_m, t - height_t, prm.baro_lpf_s)
-        held[HELD_VERTICAL_SPEED] = _lowpass(held[HELD_VERTICAL_SPEED], rate, t - height_t,
-                                             prm.vertical_speed_lpf_s)
-    held[HELD_HEIGHT_T] = t
+        rate = (sample_m - height) / lpf_s  # rate of the first-order filter
+        height = _lowpass(height, sample_m, t - height_t, lpf_s)
+        vertical_speed = _lowpass(held.vertical_speed_m_s, rate, t - height_t, rate_lpf_s)
+    return HeldInputs(held.va_m_s, held.va_t, height, t, vertical_speed, held.gps_vel_t, held.gps_pos_t)
 
 
 @njit(cache=True, inline="always")
-def gps_velocity_input(t, values, prm, held, w):
-    """A GPS velocity (NED [m/s]) at ``t`` [s]: the low-passed NED acceleration ``w.gps_acc`` of stage 1's
-    acceleration form (zero after a stale gap) and the held velocity ``w.gps_vel``."""
-    gps_vel, gps_acc = w.gps_vel, w.gps_acc
-    dt_gps = t - held[HELD_GPS_VEL_T]
+def gps_velocity_input(t, values, lpf_s, held, gps_vel, gps_acc):
+    """A GPS velocity (NED [m/s]) at ``t`` [s]: the NED acceleration ``gps_acc`` [m/s^2] of stage 1's
+    acceleration form, low-passed with the time constant ``lpf_s`` [s] (zero after a stale gap), and the held
+    velocity ``gps_vel``. Returns the new :class:`HeldInputs`."""
+    dt_gps = t - held.gps_vel_t
     if 0.0 < dt_gps < STALE_AFTER_S:
         for i in range(3):
-            gps_acc[i] = _lowpass(gps_acc[i], (values[i] - gps_vel[i]) / dt_gps, dt_gps, prm.gps_acceleration_lpf_s)
+            gps_acc[i] = _lowpass(gps_acc[i], (values[i] - gps_vel[i]) / dt_gps, dt_gps, lpf_s)
     else:
         gps_acc[:] = 0.0
     gps_vel[:] = values[:3]
-    held[HELD_GPS_VEL_T] = t
+    return HeldInputs(held.va_m_s, held.va_t, held.height_m, held.height_t, held.vertical_speed_m_s, t,
+                      held.gps_pos_t)
 
 
 # ----------------------------------------------------------------------------------------------------------------
-# stage 1 and 2
+# stage 1 and 2 (decisions: the loop calls the fusion, so that these frequent events pass their arrays once)
 
 
 @njit(cache=True, inline="always")
-def accel_control(t, prm, st, held, w, rec):
-    """Stage 1 at the accelerometer update rate (``PERIODIC``) with the inputs averaged over the interval (none
-    summed: no update); the NED acceleration from GPS while it is fresh (acceleration form), else zero. Skipped
-    beyond :data:`PITCH_GUARD_RAD`."""
-    acc_meas, mw = w.acc_meas, w.mw
-    if acc_meas[0] > 0.0:
-        if abs(st.x1[1]) > PITCH_GUARD_RAD:
-            rec.counters[C_PITCH_GUARD] += 1
-        else:
-            use_gps_acc = prm.gps_acceleration and t - held[HELD_GPS_VEL_T] < STALE_AFTER_S
-            accel_n = w.gps_acc if use_gps_acc else mw.no_accel
-            mean = mw.mean
-            for i in range(8):
-                mean[i] = acc_meas[i] / acc_meas[0]
-            stage1_update(t, mean[4:7], mean[1:4], mean[7], accel_n, prm, st.x1, st.P1, st.x2, w.w1, mw,
-                          rec.diag_f, rec.diag_i, rec.counters)
-            repair(st.P1, prm.max_var1, w.w1, rec.counters)
-        acc_meas[:] = 0.0
+def attitude_update_allowed(pitch_rad, counters):
+    """Attitude-dependent updates (accelerometer, heading) run below :data:`PITCH_GUARD_RAD` of the stage-1 pitch
+    ``pitch_rad``; a skipped one is counted (``C_PITCH_GUARD``)."""
+    if abs(pitch_rad) > PITCH_GUARD_RAD:
+        counters[C_PITCH_GUARD] += 1
+        return False
+    return True
 
 
 @njit(cache=True, inline="always")
-def heading_control(t, kind, values, variances, prm, st, heading_var_reset, rejected_since, w, rec):
-    """A heading vector (magnetometer, sun) at ``t`` [s]: the stage-2 update, skipped beyond
-    :data:`PITCH_GUARD_RAD`, then the heading re-acquisition.
+def accel_control(t, gps_acceleration, held, acc_meas, pitch_rad, mean, counters):
+    """Stage 1 at the accelerometer update rate (``PERIODIC``): an update when inputs were summed over the interval
+    (``acc_meas``, then cleared) and the pitch allows it, with their means in ``mean`` (8,); the acceleration form
+    (``gps_acceleration``) uses the NED acceleration from GPS while it is fresh, else zero.
 
-    Re-acquisition: the rejection rule of the GPS (docs/estimators.md, 'GPS re-acquisition'; the same
+    Returns (fuse with :func:`~estimators.three_stage.stages.stage1_update`, use the GPS acceleration)."""
+    if not acc_meas[0] > 0.0:
+        return False, False
+    fuse = attitude_update_allowed(pitch_rad, counters)
+    if fuse:
+        for i in range(8):
+            mean[i] = acc_meas[i] / acc_meas[0]
+    acc_meas[:] = 0.0
+    return fuse, gps_acceleration and t - held.gps_vel_t < STALE_AFTER_S
+
+
+@njit(cache=True, inline="always")
+def heading_control(t, gated, heading, rejected_since, reject_s):
+    """Heading re-acquisition after a stage-2 update at ``t`` [s] (``gated``: the vector passed the gate;
+    ``heading`` [rad]: the one the measured vector implies).
+
+    The rejection rule of the GPS (docs/estimators.md, 'GPS re-acquisition'; the same
     :func:`~estimators.core.reacquisition.rejection_streak` and
-    :func:`~estimators.core.reacquisition.rejected_too_long`, with ``T_rej``): every vector rejected for ``T_rej``
-    means the heading, not the sensor, is wrong; the heading restarts from the one the measured vector implies,
-    with the variance ``heading_var_reset`` [rad^2] (the alignment's). ``rejected_since`` [s]: start of the
-    current rejection streak (inf: none); returns its new value."""
-    x2, P2 = st.x2, st.P2
-    if abs(st.x1[1]) > PITCH_GUARD_RAD:
-        rec.counters[C_PITCH_GUARD] += 1
-        return rejected_since
-    gated, heading = stage2_update(t, kind, values, variances, prm, st.x1, st.P1, x2, P2, w.w2, w.mw, rec.diag_f,
-                                   rec.diag_i, rec.counters)
-    reacquire = (not gated and reacquisition.rejected_too_long(rejected_since, t, prm.gps_reset_after_s)
-                 and math.isfinite(heading))
+    :func:`~estimators.core.reacquisition.rejected_too_long`, ``reject_s`` = ``T_rej``): every vector rejected for
+    ``T_rej`` means the heading, not the sensor, is wrong, and the heading restarts from ``heading``
+    (:func:`restart_heading`). ``rejected_since`` [s]: start of the current rejection streak (inf: none).
+    Returns (its new value, restart now)."""
+    restart = not gated and reacquisition.rejected_too_long(rejected_since, t, reject_s) and math.isfinite(heading)
     rejected_since = reacquisition.rejection_streak(rejected_since, t, gated)
-    if reacquire:
-        x2[0] = heading
-        P2[0, 0] = heading_var_reset
-        rejected_since = math.inf
-        rec.counters[C_HEADING_RESETS] += 1
-    repair(P2, prm.max_var2, w.w2, rec.counters)
-    return rejected_since
+    return (math.inf if restart else rejected_since), restart
+
+
+@njit(cache=True)
+def restart_heading(heading, heading_var, x2, P2, counters):
+    """Heading re-initialisation: the heading ``heading`` [rad] with the variance ``heading_var`` [rad^2] (the
+    alignment's), counted in ``C_HEADING_RESETS``."""
+    x2[0] = heading
+    P2[0, 0] = heading_var
+    counters[C_HEADING_RESETS] += 1
 
 
 # ----------------------------------------------------------------------------------------------------------------
 # stage 3 (GPS epochs)
 
 
-@njit(cache=True, inline="always")
-def stage3_start(values, variances, prm, st, w):
-    """Start of stage 3 at a GPS epoch: position from its ``GPS_POS`` event (``w.gps_pos``, ``w.gps_pos_var``),
-    velocity from this ``GPS_VEL`` event, the other states and covariances initial (``prm.p3_0``)."""
-    x3, P3 = st.x3, st.P3
+@njit(cache=True)
+def stage3_start(values, variances, prm, x3, P3, gps, x3_safe, acc3):
+    """Start of stage 3 at a GPS epoch: position from its ``GPS_POS`` event (``gps.pos_ne``, ``gps.pos_var``),
+    velocity from this ``GPS_VEL`` event, the other states and covariances initial (``prm.p3_0``); the last
+    healthy state ``x3_safe`` is the start, the input sums ``acc3`` of its covariance start empty."""
     x3[:] = 0.0
     P3[:, :] = prm.p3_0
     for i in range(2):
-        x3[i] = w.gps_pos[i]
-        P3[i, i] = max(P3[i, i], w.gps_pos_var[i])
+        x3[i] = gps.pos_ne[i]
+        P3[i, i] = max(P3[i, i], gps.pos_var[i])
     stage3_init_velocity(values, variances, prm, x3, P3)
-    w.x3_safe[:] = x3
-    w.acc3[:] = 0.0
+    x3_safe[:] = x3
+    acc3[:] = 0.0
 
 
 @njit(cache=True, inline="always")
@@ -216,43 +208,43 @@ def _reset_position(values, variances, x3, P3):
 
 
 @njit(cache=True, inline="always")
-def gps_position_control(t, values, variances, prm, st, stage3_on, held, w, rec):
+def gps_position_control(t, values, variances, stage3_on, reject_s, outage_s, held, gps, x3, P3, counters):
     """A GPS position (NED [m]) at ``t`` [s]: held for the start of stage 3; once it runs, the re-acquisition
-    reset, else the fixed-wing wind pseudo-measurement (while the airspeed is fresh) and the position update."""
-    held[HELD_GPS_POS_T] = t
-    w.gps_pos[:] = values[:2]
-    w.gps_pos_var[:] = variances[:2]
+    (:func:`~estimators.core.reacquisition.gps_control` with ``T_rej = reject_s``, ``T_out = outage_s`` [s])
+    resets the position instead of fusing it. Returns (fuse it with
+    :func:`~estimators.three_stage.stages.stage3_gps_position`, the new :class:`HeldInputs`)."""
+    held = HeldInputs(held.va_m_s, held.va_t, held.height_m, held.height_t, held.vertical_speed_m_s, held.gps_vel_t, t)
+    gps.pos_ne[:] = values[:2]
+    gps.pos_var[:] = variances[:2]
     if not stage3_on:
-        return
-    if reacquisition.gps_control(w.gps_mon, GPS_POS, t, prm.gps_reset_after_s, prm.gps_outage_reset_s,
-                                 rec.counters):
-        _reset_position(values, variances, st.x3, st.P3)
-        return
-    if prm.fixed_wing_nav and t - held[HELD_VA_T] < STALE_AFTER_S:
-        stage3_fw_wind(t, held[HELD_VA], w.gps_vel[2], prm, st.x2, st.P2, st.x3, st.P3, w.w3, w.mw, rec.diag_f,
-                       rec.diag_i, rec.counters)
-    stage3_gps_position(t, values, variances, prm, st.x3, st.P3, w.w3, w.gps_mon, rec.diag_f, rec.diag_i,
-                        rec.counters)
-    repair(st.P3, prm.max_var3, w.w3, rec.counters)
+        return False, held
+    if reacquisition.gps_control(gps.monitor, GPS_POS, t, reject_s, outage_s, counters):
+        _reset_position(values, variances, x3, P3)
+        return False, held
+    return True, held
 
 
 @njit(cache=True, inline="always")
-def gps_velocity_control(t, values, variances, prm, st, stage3_on, held, w, rec):
-    """A GPS velocity (NED [m/s]) at ``t`` [s] after :func:`gps_velocity_input`: the start of stage 3 at a GPS
-    epoch with a position (fixed wing: above the minimum ground speed); once it runs, the re-acquisition reset of
-    the velocity, else the velocity update. Returns whether stage 3 runs."""
+def wind_pseudo_due(fixed_wing_nav, t, held):
+    """The fixed-wing wind-triangle pseudo-measurement goes with a fused GPS position while the airspeed is fresh
+    (:func:`~estimators.three_stage.stages.stage3_fw_wind`)."""
+    return fixed_wing_nav and t - held.va_t < STALE_AFTER_S
+
+
+@njit(cache=True, inline="always")
+def gps_velocity_control(t, speed_m_s, stage3_on, min_ground_speed_m_s, fixed_wing_nav, reject_s, outage_s, held,
+                         monitor, counters):
+    """A GPS velocity (horizontal speed ``speed_m_s`` [m/s]) at ``t`` [s]: the start of stage 3
+    (:func:`stage3_start`) at a GPS epoch with a position (fixed wing: above ``min_ground_speed_m_s``), which arms
+    the re-acquisition ``monitor``; once stage 3 runs, the re-acquisition
+    (:func:`~estimators.core.reacquisition.gps_control`) resets the velocity
+    (:func:`~estimators.three_stage.stages.stage3_init_velocity`) instead of fusing it
+    (:func:`~estimators.three_stage.stages.stage3_gps_velocity`). Returns the action, ``GPS_*``."""
     if not stage3_on:
-        fast = math.hypot(values[0], values[1]) > prm.min_ground_speed_m_s
-        if held[HELD_GPS_POS_T] == t and (fast or not prm.fixed_wing_nav):
-            stage3_start(values, variances, prm, st, w)
-            reacquisition.gps_acquired(w.gps_mon, t)
-            return True
-        return False
-    if reacquisition.gps_control(w.gps_mon, GPS_VEL, t, prm.gps_reset_after_s, prm.gps_outage_reset_s,
-                                 rec.counters):
-        stage3_init_velocity(values, variances, prm, st.x3, st.P3)
-    else:
-        stage3_gps_velocity(t, values, variances, prm, st.x3, st.P3, w.w3, w.gps_mon, rec.diag_f, rec.diag_i,
-                            rec.counters)
-        repair(st.P3, prm.max_var3, w.w3, rec.counters)
-    return True
+        if held.gps_pos_t == t and (speed_m_s > min_ground_speed_m_s or not fixed_wing_nav):
+            reacquisition.gps_acquired(monitor, t)
+            return GPS_START
+        return GPS_NONE
+    if reacquisition.gps_control(monitor, GPS_VEL, t, reject_s, outage_s, counters):
+        return GPS_RESET
+    return GPS_FUSE

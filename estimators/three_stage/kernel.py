@@ -40,20 +40,38 @@ from estimators.core.recorder import C_OUTPUTS, Recorder
 from estimators.core.schedule import COVARIANCE, PERIODIC, PROPAGATE
 from estimators.inputs.records import AIRSPEED, BARO, GPS_POS, GPS_VEL, MAG, OUTPUT, SUN
 from estimators.three_stage.control import (
-    HELD_HEIGHT,
-    HELD_VERTICAL_SPEED,
+    GPS_FUSE,
+    GPS_RESET,
+    GPS_START,
+    STALE_AFTER_S,
     accel_control,
     airspeed_input,
-    fresh_airspeed,
+    attitude_update_allowed,
     gps_position_control,
     gps_velocity_control,
     gps_velocity_input,
     heading_control,
     height_input,
     held_inputs,
+    restart_heading,
+    stage3_start,
+    wind_pseudo_due,
 )
 from estimators.three_stage.model import I_DEVIATION, corrected_heading
-from estimators.three_stage.stages import accumulate, check_health, flush_stage1, flush_stage3, propagate_states
+from estimators.three_stage.stages import (
+    accumulate_intervals,
+    check_health,
+    flush_stage1,
+    flush_stage3,
+    propagate_states,
+    repair,
+    stage1_update,
+    stage2_update,
+    stage3_fw_wind,
+    stage3_gps_position,
+    stage3_gps_velocity,
+    stage3_init_velocity,
+)
 
 #: Columns of the kernel's output array (angles [rad], positions [m], speeds [m/s]; ``*_std`` 1-sigma).
 OUT_COLUMNS = ("time_s", "roll", "pitch", "yaw", "pn", "pe", "pd", "vn", "ve", "vd", "wn", "we",
@@ -158,33 +176,22 @@ class StageStates(NamedTuple):
     P3: np.ndarray  # (n3, n3)
 
 
-class KernelWork(NamedTuple):
-    """Preallocated arrays of one run besides the stage states: the kernel loop allocates nothing per sample."""
+class HealthyStates(NamedTuple):
+    """The last healthy stage states (divergence check), the states a reset returns to."""
 
-    w1: StageWork
-    w2: StageWork
-    w3: StageWork
-    mw: MeasurementWork
-    x1_safe: np.ndarray  # (2,) last healthy states (divergence check)
-    x2_safe: np.ndarray  # (1,)
-    x3_safe: np.ndarray  # (n3,)
-    rates: np.ndarray  # (3,) bias-corrected gyro of the IMU row [rad/s]
-    f_b: np.ndarray  # (3,) specific force of the IMU row [m/s^2]
-    variances: np.ndarray  # (n_values,) event variances raised to the model-error floor
-    # input sums (dt, omega dt, f dt, V_a dt) of the accelerometer update interval and of the deferred stage-1
-    # and stage-3 covariance propagations, with the states and attitude at the start of those intervals
-    acc_meas: np.ndarray  # (8,)
-    acc1: np.ndarray  # (8,)
-    acc3: np.ndarray  # (8,)
-    x1_start: np.ndarray  # (2,)
-    x3_start: np.ndarray  # (n3,)
-    attitude_start: np.ndarray  # (3,) roll, pitch, stage-2 heading [rad]
-    gps_vel: np.ndarray  # (3,) last GPS velocity NED [m/s]
-    gps_acc: np.ndarray  # (3,) low-passed NED acceleration from the GPS velocity [m/s^2]
-    gps_pos: np.ndarray  # (2,) last GPS north, east [m] (start of stage 3)
-    gps_pos_var: np.ndarray  # (2,) their variances [m^2]
-    gps_mon: np.ndarray  # GPS re-acquisition monitor (estimators.core.reacquisition), armed when stage 3 starts
-    row: np.ndarray  # (len(OUT_COLUMNS),) output row scratch
+    x1: np.ndarray  # (2,)
+    x2: np.ndarray  # (1,)
+    x3: np.ndarray  # (n3,)
+
+
+class GpsWork(NamedTuple):
+    """The GPS data the three-stage control holds between events."""
+
+    vel_ned: np.ndarray  # (3,) last GPS velocity NED [m/s]
+    acc_ned: np.ndarray  # (3,) low-passed NED acceleration from the GPS velocity [m/s^2]
+    pos_ne: np.ndarray  # (2,) last GPS north, east [m] (start of stage 3)
+    pos_var: np.ndarray  # (2,) their variances [m^2]
+    monitor: np.ndarray  # GPS re-acquisition monitor (estimators.core.reacquisition), armed when stage 3 starts
 
 
 @njit(cache=True)
@@ -202,17 +209,6 @@ def _measurement_work():
     return MeasurementWork(np.zeros(3), np.zeros((3, 3)), np.zeros((3, 2)), np.zeros(3), np.zeros((3, 2)),
                            np.zeros((3, 1)), np.zeros((3, 3)), np.zeros((3, 3)), np.zeros((3, 3)), np.zeros((3, 1)),
                            np.zeros(8), np.zeros(3))
-
-
-@njit(cache=True)
-def _kernel_work(x1, x2, x3, n_values, n_columns):
-    """Work arrays of a run with the initial stage states ``x1, x2, x3``, ``n_values`` event values and
-    ``n_columns`` output columns."""
-    n3 = x3.shape[0]
-    return KernelWork(_stage_work(2, 3, 3), _stage_work(1, 3, 3), _stage_work(n3, 2, 6), _measurement_work(),
-                      x1.copy(), x2.copy(), x3.copy(), np.empty(3), np.empty(3), np.empty(n_values), np.zeros(8),
-                      np.zeros(8), np.zeros(8), x1.copy(), x3.copy(), np.zeros(3), np.zeros(3), np.zeros(3),
-                      np.zeros(2), np.zeros(2), reacquisition.gps_monitor(), np.empty(n_columns))
 
 
 @njit(cache=True, inline="always")
@@ -255,49 +251,18 @@ def _output_row(t, x1, P1, x2, P2, x3, P3, stage3_on, fixed_wing_nav, height, ve
         row[O_VE_STD] = math.sqrt(P3[3, 3])
 
 
-@njit(cache=True, inline="always")
-def _propagate(dt, imu_gyro, imu_accel, k, va, prm, st, stage3_on, w):
-    """``PROPAGATE``: the states over ``dt`` [s] with IMU row ``k`` (gyro [rad/s], accelerometer [m/s^2]) and
-    the airspeed ``va`` [m/s] held; the inputs summed for the accelerometer update and the deferred covariances
-    (their start states kept when an interval begins)."""
-    rates, f_b = w.rates, w.f_b
-    for i in range(3):
-        rates[i] = imu_gyro[k, i] - prm.gyro_bias_rad_s[i]
-        f_b[i] = imu_accel[k, i]
-    if w.acc1[0] == 0.0:
-        w.x1_start[:] = st.x1
-    if stage3_on and w.acc3[0] == 0.0:
-        w.x3_start[:] = st.x3
-        w.attitude_start[0], w.attitude_start[1], w.attitude_start[2] = st.x1[0], st.x1[1], st.x2[0]
-    propagate_states(dt, rates, f_b, va, prm, st.x1, st.x2, st.P2, st.x3, stage3_on)
-    accumulate(w.acc_meas, dt, rates, f_b, va)
-    accumulate(w.acc1, dt, rates, f_b, va)
-    if stage3_on:
-        accumulate(w.acc3, dt, rates, f_b, va)
+class Intervals(NamedTuple):
+    """The IMU row being integrated and the input sums of the open intervals: the accelerometer update interval
+    and the deferred stage-1 and stage-3 covariance propagations, with the states at their start."""
 
-
-@njit(cache=True, inline="always")
-def _flush(prm, st, stage3_on, w):
-    """``COVARIANCE``: the deferred covariance propagation of stage 1 and, once it runs, stage 3."""
-    w1, w3 = w.w1, w.w3
-    flush_stage1(w.acc1, w.x1_start, st.P1, prm, w1.A, w1.G, w1.F, w1.Q, w1.W, w1.u, w1.values, w1.cols, w1.counts,
-                 w1.columns)
-    if stage3_on:
-        flush_stage3(w.acc3, w.x3_start, w.attitude_start, st.P1, st.P2, st.P3, prm, w3.A, w3.G, w3.F, w3.Q, w3.W,
-                     w3.u, w3.input_var, w3.values, w3.cols, w3.counts, w3.columns)
-
-
-@njit(cache=True, inline="always")
-def _output(t, prm, st, stage3_on, held, w, out, n_out, counters):
-    """``OUTPUT`` at ``t`` [s]: the divergence check (never a non-finite output row: reset to the last healthy
-    state), then output row ``n_out``."""
-    check_health(st.x1, st.P1, w.x1_safe, prm.p1_0, counters)
-    check_health(st.x2, st.P2, w.x2_safe, prm.p2_0, counters)
-    if stage3_on:
-        check_health(st.x3, st.P3, w.x3_safe, prm.p3_0, counters)
-    _output_row(t, st.x1, st.P1, st.x2, st.P2, st.x3, st.P3, stage3_on, prm.fixed_wing_nav, held[HELD_HEIGHT],
-                held[HELD_VERTICAL_SPEED], w.row)
-    recorder.record_output(out, n_out, w.row)
+    rates: np.ndarray  # (3,) bias-corrected gyro of the IMU row [rad/s]
+    f_b: np.ndarray  # (3,) specific force of the IMU row [m/s^2]
+    acc_meas: np.ndarray  # (8,) sums (dt, omega dt, f dt, V_a dt) of the accelerometer update interval
+    acc1: np.ndarray  # (8,) the same of the stage-1 covariance interval
+    acc3: np.ndarray  # (8,) the same of the stage-3 covariance interval
+    x1_start: np.ndarray  # (2,) stage-1 state at the start of its covariance interval
+    x3_start: np.ndarray  # (n3,) stage-3 state at the start of its covariance interval
+    attitude_start: np.ndarray  # (3,) roll, pitch, stage-2 heading [rad] at the same time
 
 
 @njit(cache=True, nogil=True)  # the replays of noise identification run in threads
@@ -325,48 +290,111 @@ def run_kernel(op, op_value, op_index, imu_t, imu_gyro, imu_accel, ev_kind, ev_v
         Diagnostics recorder arrays (:mod:`estimators.core.recorder`).
     counters : int64 (N_COUNTERS,)
     """
-    st = StageStates(x1, P1, x2, P2, x3, P3)
-    w = _kernel_work(x1, x2, x3, ev_var.shape[1], out.shape[1])
-    rec = Recorder(diag_f, diag_i, counters)
+    iv = Intervals(np.empty(3), np.empty(3), np.zeros(8), np.zeros(8), np.zeros(8), x1.copy(), x3.copy(),
+                   np.zeros(3))
+    work = (_stage_work(2, 3, 3), _stage_work(1, 3, 3), _stage_work(x3.shape[0], 2, 6), _measurement_work())
+    gps = GpsWork(np.zeros(3), np.zeros(3), np.zeros(2), np.zeros(2), reacquisition.gps_monitor())
+    _loop(op, op_value, op_index, imu_t, imu_gyro, imu_accel, ev_kind, ev_val, ev_var, prm,
+          StageStates(x1, P1, x2, P2, x3, P3), HealthyStates(x1.copy(), x2.copy(), x3.copy()), iv, gps, work, out,
+          Recorder(diag_f, diag_i, counters))
+
+
+@njit(cache=True)
+def _loop(op, op_value, op_index, imu_t, imu_gyro, imu_accel, ev_kind, ev_val, ev_var, prm, st, safe, iv, gps, work,
+          out, rec):
+    """The loop of :func:`run_kernel` over the schedule, with its arrays bundled (called once: the bundles are
+    unpacked here, so that each operation passes its steps loose arrays, see :mod:`estimators.three_stage.control`)."""
+    x1, P1, x2, P2, x3, P3 = st
+    rates, f_b, acc_meas, acc1, acc3, x1_start, x3_start, attitude_start = iv
+    (w1, w2, w3, mw), (diag_f, diag_i, counters), (x1_safe, x2_safe, x3_safe) = work, rec, safe
+    gps_vel, gps_acc, gps_mon = gps.vel_ned, gps.acc_ned, gps.monitor
     held = held_inputs(prm.initial_height_m)
-    stage3_on = False
+    row, variances = np.empty(out.shape[1]), np.empty(ev_var.shape[1])  # variances: raised to the model floor
+    stage3_on, n_out = False, 0
+    reject_s, outage_s = prm.gps_reset_after_s, prm.gps_outage_reset_s  # T_rej, T_out of the re-acquisition rule
     heading_rejected_since = math.inf  # start of the current streak of gated-out heading vectors
     heading_var_reset = P2[0, 0]  # the alignment's heading variance, given to a re-acquired heading
-    n_out = 0
     t = imu_t[0] if imu_t.shape[0] > 0 else 0.0
     for s in range(op.shape[0]):
         code = op[s]
         if code == PROPAGATE:
             k = op_index[s]
-            _propagate(op_value[s], imu_gyro, imu_accel, k, fresh_airspeed(t, held), prm, st, stage3_on, w)
+            dt = op_value[s]
+            for i in range(3):
+                rates[i] = imu_gyro[k, i] - prm.gyro_bias_rad_s[i]
+                f_b[i] = imu_accel[k, i]
+            va = held.va_m_s if t - held.va_t < STALE_AFTER_S else 0.0  # stale: no centripetal term
+            if acc1[0] == 0.0:
+                x1_start[:] = x1
+            if stage3_on and acc3[0] == 0.0:
+                x3_start[:] = x3
+                attitude_start[0], attitude_start[1], attitude_start[2] = x1[0], x1[1], x2[0]
+            propagate_states(dt, rates, f_b, va, prm, x1, x2, P2, x3, stage3_on)
+            accumulate_intervals(acc_meas, acc1, acc3, stage3_on, dt, rates, f_b, va)
             # a step ends at its row's time, or at the time of the event that follows it (the EVENT sets t)
             t = imu_t[k]
             continue
         t = op_value[s]
         if code == COVARIANCE:
-            _flush(prm, st, stage3_on, w)
-        elif code == PERIODIC:
-            accel_control(t, prm, st, held, w, rec)
-        else:  # EVENT
-            ie = op_index[s]
-            kind = ev_kind[ie]
-            values = ev_val[ie]
-            variances = w.variances
-            for i in range(variances.shape[0]):
-                variances[i] = np.maximum(ev_var[ie, i], prm.variance_floor[kind])
-            if kind == OUTPUT:
-                _output(t, prm, st, stage3_on, held, w, out, n_out, counters)
-                n_out += 1
-            elif kind == AIRSPEED:
-                airspeed_input(t, values[0], prm, held)
-            elif kind == BARO or (kind == GPS_POS and prm.height_from_gps):
-                height_input(t, values[0] if kind == BARO else -values[2], prm, held)
-            if kind in (MAG, SUN):
-                heading_rejected_since = heading_control(t, kind, values, variances, prm, st, heading_var_reset,
-                                                         heading_rejected_since, w, rec)
-            elif kind == GPS_POS:
-                gps_position_control(t, values, variances, prm, st, stage3_on, held, w, rec)
-            elif kind == GPS_VEL:
-                gps_velocity_input(t, values, prm, held, w)
-                stage3_on = gps_velocity_control(t, values, variances, prm, st, stage3_on, held, w, rec)
+            flush_stage1(acc1, x1_start, P1, prm, w1.A, w1.G, w1.F, w1.Q, w1.W, w1.u, w1.values, w1.cols, w1.counts,
+                         w1.columns)
+            if stage3_on:
+                flush_stage3(acc3, x3_start, attitude_start, P1, P2, P3, prm, w3.A, w3.G, w3.F, w3.Q, w3.W, w3.u,
+                             w3.input_var, w3.values, w3.cols, w3.counts, w3.columns)
+            continue
+        if code == PERIODIC:
+            mean = mw.mean
+            fuse, use_gps_acc = accel_control(t, prm.gps_acceleration, held, acc_meas, x1[1], mean, counters)
+            if fuse:
+                stage1_update(t, mean[4:7], mean[1:4], mean[7], gps_acc if use_gps_acc else mw.no_accel, prm, x1,
+                              P1, x2, w1, mw, diag_f, diag_i, counters)
+                repair(P1, prm.max_var1, w1, counters)
+            continue
+        ie = op_index[s]  # EVENT
+        kind, values = ev_kind[ie], ev_val[ie]
+        for i in range(variances.shape[0]):
+            variances[i] = np.maximum(ev_var[ie, i], prm.variance_floor[kind])
+        if kind == OUTPUT:
+            # divergence check at the output rate: never a non-finite output row (reset to the last healthy)
+            check_health(x1, P1, x1_safe, prm.p1_0, counters)
+            check_health(x2, P2, x2_safe, prm.p2_0, counters)
+            if stage3_on:
+                check_health(x3, P3, x3_safe, prm.p3_0, counters)
+            _output_row(t, x1, P1, x2, P2, x3, P3, stage3_on, prm.fixed_wing_nav, held.height_m,
+                        held.vertical_speed_m_s, row)
+            recorder.record_output(out, n_out, row)
+            n_out += 1
+        elif kind == AIRSPEED:
+            held = airspeed_input(t, values[0], prm.airspeed_lpf_s, held)
+        elif kind == BARO or (kind == GPS_POS and prm.height_from_gps):
+            held = height_input(t, values[0] if kind == BARO else -values[2], prm.baro_lpf_s,
+                                prm.vertical_speed_lpf_s, held)
+        if kind in (MAG, SUN):
+            if attitude_update_allowed(x1[1], counters):
+                gated, heading = stage2_update(t, kind, values, variances, prm, x1, P1, x2, P2, w2, mw, diag_f,
+                                               diag_i, counters)
+                heading_rejected_since, restart = heading_control(t, gated, heading, heading_rejected_since, reject_s)
+                if restart:
+                    restart_heading(heading, heading_var_reset, x2, P2, counters)
+                repair(P2, prm.max_var2, w2, counters)
+        elif kind == GPS_POS:
+            fuse, held = gps_position_control(t, values, variances, stage3_on, reject_s, outage_s, held, gps, x3, P3,
+                                              counters)
+            if fuse:
+                if wind_pseudo_due(prm.fixed_wing_nav, t, held):
+                    stage3_fw_wind(t, held.va_m_s, gps_vel[2], prm, x2, P2, x3, P3, w3, mw, diag_f, diag_i, counters)
+                stage3_gps_position(t, values, variances, prm, x3, P3, w3, gps_mon, diag_f, diag_i, counters)
+                repair(P3, prm.max_var3, w3, counters)
+        elif kind == GPS_VEL:
+            held = gps_velocity_input(t, values, prm.gps_acceleration_lpf_s, held, gps_vel, gps_acc)
+            action = gps_velocity_control(t, math.hypot(values[0], values[1]), stage3_on, prm.min_ground_speed_m_s,
+                                          prm.fixed_wing_nav, reject_s, outage_s, held, gps_mon, counters)
+            if action == GPS_START:
+                stage3_start(values, variances, prm, x3, P3, gps, x3_safe, acc3)
+                stage3_on = True
+            elif action == GPS_RESET:
+                stage3_init_velocity(values, variances, prm, x3, P3)
+            elif action == GPS_FUSE:
+                stage3_gps_velocity(t, values, variances, prm, x3, P3, w3, gps_mon, diag_f, diag_i, counters)
+                repair(P3, prm.max_var3, w3, counters)
     counters[C_OUTPUTS] = n_out
