@@ -307,11 +307,11 @@ def _direct_work(x0, n_columns):
 # control: when a measurement is fused, and when states are reset or re-initialised instead (docs/direct.md,
 # 'Control and fusion'): attitude_update_allowed, wind_control and the shared GPS rule
 # estimators.core.reacquisition.gps_control decide, the loop resets (reset_to_gps, initialise_wind) or fuses
-# (_fuse). One call site each, inline="always"; every array an inlined call receives (loose or in a tuple) costs
-# a reference-count pair per call, so the controls take what they decide on and do not wrap the fusion.
+# (_fuse). Every array a numba call receives (loose or in a tuple) costs a reference-count pair per call, so the
+# controls take what they decide on and do not wrap the fusion; _fuse is inline="always" (one call site).
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def attitude_update_allowed(x, kind, counters):
     """Updates that depend on the attitude (all but the barometer and the GPS position) run below
     :data:`PITCH_GUARD_RAD` of pitch (Euler singularity); a skipped one is counted (``C_PITCH_GUARD``)."""
@@ -321,7 +321,7 @@ def attitude_update_allowed(x, kind, counters):
     return True
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def wind_control(x, n_wind_inits, layout, R_nb, S_euler, W_euler):
     """Wind (re)start at an airspeed event (wind states present): at the first airspeed of the flight
     (``n_wind_inits`` = 0), or when the wind has the aircraft flying backwards (:func:`air_flows_backwards`; no
@@ -430,7 +430,7 @@ def run_kernel(imu_gyro, imu_accel, ev_kind, ev_val, ev_var, op, op_dt, op_index
     return x, P
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")  # compiled once, in run_kernel (a callee linked in is optimised again)
 def _loop(imu_gyro, imu_accel, ev_kind, ev_val, ev_var, op, op_dt, op_index, settings, x, P, w, out_f, out_x, out_sx,
           rec):
     """The loop of :func:`run_kernel` over the schedule from the state ``x`` and covariance ``P`` (in place), with

@@ -291,7 +291,7 @@ def _write_output(out_f, out_sd, row, t, x, P):
 # the loop resets (reset_to_gps, initialise_wind) or fuses (_fuse)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def wind_control(x, n_wind_inits):
     """Wind (re)start at an airspeed event (wind states active): at the first airspeed of the flight
     (``n_wind_inits`` = 0), or when the wind has the aircraft flying backwards (:func:`air_flows_backwards`; no

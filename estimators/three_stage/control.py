@@ -15,10 +15,11 @@ Per sensor, called by :func:`estimators.three_stage.kernel.run_kernel` at its ev
   read (:class:`HeldInputs`, scalars passed by value).
 
 Arguments: ``prm`` :class:`~estimators.three_stage.kernel.KernelParams`, ``gps`` the held GPS data
-(:class:`~estimators.three_stage.kernel.GpsWork`), ``held`` the held inputs. Every function here has one call site
-and is ``inline="always"``: the loop pays no call and compiles the same code. Every array an inlined call receives
-(loose or in a tuple) still costs a reference-count pair per call (0.1 us per sample when a control wrapped its
-fusion), so the controls decide (and reset or start) and the loop calls the fusion with the arrays it holds.
+(:class:`~estimators.three_stage.kernel.GpsWork`), ``held`` the held inputs. The controls are small compiled
+functions (not ``inline="always"``, which compiles the callee again at every call site) that take the values they
+decide on: every array a numba call receives costs a reference-count pair per call, so they do not wrap the fusion
+(a control level around the fusion of the frequent events cost 0.1 us per IMU sample); the loop calls the fusion
+with the arrays it holds.
 """
 
 from __future__ import annotations
@@ -80,7 +81,7 @@ def _lowpass(value, sample, dt, tau):
 # inputs
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def airspeed_input(t, airspeed_m_s, lpf_s, held):
     """An airspeed sample at ``t`` [s]: low-passed with the time constant ``lpf_s`` [s] (restarted after a stale
     gap). Returns the new :class:`HeldInputs`."""
@@ -88,7 +89,7 @@ def airspeed_input(t, airspeed_m_s, lpf_s, held):
     return HeldInputs(va, t, held.height_m, held.height_t, held.vertical_speed_m_s, held.gps_vel_t, held.gps_pos_t)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def height_input(t, sample_m, lpf_s, rate_lpf_s, held):
     """A height sample [m] above the origin at ``t`` [s] (barometer, or GPS without one): the low-passed height
     (time constant ``lpf_s`` [s]) and vertical speed (``rate_lpf_s`` [s]) of the output. Returns the new
@@ -103,7 +104,7 @@ def height_input(t, sample_m, lpf_s, rate_lpf_s, held):
     return HeldInputs(held.va_m_s, held.va_t, height, t, vertical_speed, held.gps_vel_t, held.gps_pos_t)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def gps_velocity_input(t, values, lpf_s, held, gps_vel, gps_acc):
     """A GPS velocity (NED [m/s]) at ``t`` [s]: the NED acceleration ``gps_acc`` [m/s^2] of stage 1's
     acceleration form, low-passed with the time constant ``lpf_s`` [s] (zero after a stale gap), and the held
@@ -123,7 +124,7 @@ def gps_velocity_input(t, values, lpf_s, held, gps_vel, gps_acc):
 # stage 1 and 2 (decisions: the loop calls the fusion, so that these frequent events pass their arrays once)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def attitude_update_allowed(pitch_rad, counters):
     """Attitude-dependent updates (accelerometer, heading) run below :data:`PITCH_GUARD_RAD` of the stage-1 pitch
     ``pitch_rad``; a skipped one is counted (``C_PITCH_GUARD``)."""
@@ -133,7 +134,7 @@ def attitude_update_allowed(pitch_rad, counters):
     return True
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def accel_control(t, gps_acceleration, held, acc_meas, pitch_rad, mean, counters):
     """Stage 1 at the accelerometer update rate (``PERIODIC``): an update when inputs were summed over the interval
     (``acc_meas``, then cleared) and the pitch allows it, with their means in ``mean`` (8,); the acceleration form
@@ -150,7 +151,7 @@ def accel_control(t, gps_acceleration, held, acc_meas, pitch_rad, mean, counters
     return fuse, gps_acceleration and t - held.gps_vel_t < STALE_AFTER_S
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def heading_control(t, gated, heading, rejected_since, reject_s):
     """Heading re-acquisition after a stage-2 update at ``t`` [s] (``gated``: the vector passed the gate;
     ``heading`` [rad]: the one the measured vector implies).
@@ -194,7 +195,7 @@ def stage3_start(values, variances, prm, x3, P3, gps, x3_safe, acc3):
     acc3[:] = 0.0
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _reset_position(values, variances, x3, P3):
     """GPS re-acquisition of the position: north and east to the GPS, variances to R, cross-covariances zeroed
     (docs/estimators.md, 'GPS re-acquisition'; the velocity follows at its event)."""
@@ -207,7 +208,7 @@ def _reset_position(values, variances, x3, P3):
         P3[i, i] = variances[i]
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def gps_position_control(t, values, variances, stage3_on, reject_s, outage_s, held, gps, x3, P3, counters):
     """A GPS position (NED [m]) at ``t`` [s]: held for the start of stage 3; once it runs, the re-acquisition
     (:func:`~estimators.core.reacquisition.gps_control` with ``T_rej = reject_s``, ``T_out = outage_s`` [s])
@@ -224,14 +225,14 @@ def gps_position_control(t, values, variances, stage3_on, reject_s, outage_s, he
     return True, held
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def wind_pseudo_due(fixed_wing_nav, t, held):
     """The fixed-wing wind-triangle pseudo-measurement goes with a fused GPS position while the airspeed is fresh
     (:func:`~estimators.three_stage.stages.stage3_fw_wind`)."""
     return fixed_wing_nav and t - held.va_t < STALE_AFTER_S
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def gps_velocity_control(t, speed_m_s, stage3_on, min_ground_speed_m_s, fixed_wing_nav, reject_s, outage_s, held,
                          monitor, counters):
     """A GPS velocity (horizontal speed ``speed_m_s`` [m/s]) at ``t`` [s]: the start of stage 3

@@ -299,7 +299,7 @@ def run_kernel(op, op_value, op_index, imu_t, imu_gyro, imu_accel, ev_kind, ev_v
           Recorder(diag_f, diag_i, counters))
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")  # compiled once, in run_kernel (a callee linked in is optimised again)
 def _loop(op, op_value, op_index, imu_t, imu_gyro, imu_accel, ev_kind, ev_val, ev_var, prm, st, safe, iv, gps, work,
           out, rec):
     """The loop of :func:`run_kernel` over the schedule, with its arrays bundled (called once: the bundles are
