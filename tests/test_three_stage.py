@@ -20,6 +20,7 @@ from estimators.core import recorder, state_table
 from estimators.core.results import STATE_COLUMNS
 from estimators.evaluation import PAPER_TABLE_2, config_for_simulation, rms_errors
 from estimators.inputs import alignment, build, records
+from estimators.three_stage import control as ts_control
 from estimators.three_stage import kernel as ts_kernel
 from estimators.three_stage import measurements as meas
 from estimators.three_stage import model as m
@@ -310,7 +311,7 @@ def test_whitened_vector_update_equals_the_batch_update(rng):
     n, m_components = 4, 3
     w, mw = ts_kernel._stage_work(n, 2, 6), ts_kernel._measurement_work()
     diag_f, diag_i = recorder.diagnostics_arrays(8)
-    counters = np.zeros(ts_kernel.N_COUNTERS, dtype=np.int64)
+    counters = np.zeros(ts_control.N_COUNTERS, dtype=np.int64)
     for _ in range(N_RANDOM):
         a = rng.normal(size=(n, n))
         P = a @ a.T + 0.1 * np.eye(n)

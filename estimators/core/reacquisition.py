@@ -1,8 +1,13 @@
-"""GPS re-acquisition policy shared by the three filters (docs/estimators.md, 'GPS re-acquisition').
+"""Re-acquisition policy shared by the three filters (docs/estimators.md, 'GPS re-acquisition').
 
-A position or velocity component rejected continuously for ``T_rej``, or GPS back after an outage longer than
-``T_out``, resets position and velocity to the GPS (:func:`gps_reset_due`); the monitor is a small float64 array
-(:func:`gps_monitor`) with the slots ``GM_*``.
+The rejection rule: a measurement channel whose updates are all rejected for ``T_rej`` means the state, not the
+sensor, is wrong, and the state restarts from the measurement. A channel's streak of rejections is one float, its
+start time (:func:`rejection_streak`, :func:`rejected_too_long`); the GPS channels and the three-stage filter's
+heading (:func:`estimators.three_stage.control.heading_control`) use the same two functions.
+
+GPS: a position or velocity component rejected continuously for ``T_rej``, or GPS back after an outage longer
+than ``T_out``, resets position and velocity to the GPS (:func:`gps_reset_due`, :func:`gps_control`); the monitor
+is a small float64 array (:func:`gps_monitor`) with the slots ``GM_*``.
 """
 
 from __future__ import annotations
@@ -11,6 +16,31 @@ import math
 
 import numpy as np
 from numba import njit
+
+from estimators.core.recorder import C_GPS_RESETS
+from estimators.inputs.records import GPS_POS
+
+# ----------------------------------------------------------------------------------------------------------------
+# the rejection rule
+
+
+@njit(cache=True)
+def rejection_streak(start_s, t, accepted):
+    """Start [s] of a channel's rejection streak after an update at ``t`` [s] (``start_s`` before it; inf: no
+    streak): an acceptance ends the streak, a rejection starts one (or continues it)."""
+    if accepted:
+        return math.inf
+    if start_s == math.inf:
+        return t
+    return start_s
+
+
+@njit(cache=True)
+def rejected_too_long(start_s, t, reject_s):
+    """The rule's trigger: the rejection streak that started at ``start_s`` [s] has lasted ``reject_s`` [s] or
+    more at ``t`` [s] (never without a streak, ``start_s`` = inf)."""
+    return t - start_s >= reject_s
+
 
 # ----------------------------------------------------------------------------------------------------------------
 # GPS re-acquisition (docs/estimators.md, 'GPS re-acquisition')
@@ -57,10 +87,7 @@ def gps_record(mon, position, component, t, accepted):
     """Book one gated GPS scalar update at time ``t`` [s]: an acceptance ends the channel's rejection streak, a
     rejection starts one (or continues it)."""
     slot = GM_STREAK + gps_channel(position, component)
-    if accepted:
-        mon[slot] = math.inf
-    elif mon[slot] == math.inf:
-        mon[slot] = t
+    mon[slot] = rejection_streak(mon[slot], t, accepted)
 
 
 @njit(cache=True)
@@ -106,7 +133,7 @@ def gps_reset_due(mon, position, t, reject_s, outage_s):
     outage = last > -math.inf and t - last > outage_s
     rejected = False
     for c in range(GPS_CHANNELS):
-        if t - mon[GM_STREAK + c] >= reject_s:
+        if rejected_too_long(mon[GM_STREAK + c], t, reject_s):
             rejected = True
     if not (outage or rejected):
         return False, False
@@ -114,3 +141,14 @@ def gps_reset_due(mon, position, t, reject_s, outage_s):
         mon[GM_STREAK + c] = math.inf
     mon[other_pending] = 1.0
     return True, True
+
+
+@njit(cache=True)
+def gps_control(mon, kind, t, reject_s, outage_s, counters):
+    """The GPS control step of every filter at a ``GPS_POS`` or ``GPS_VEL`` event at ``t`` [s]: whether this
+    kind's states are reset to the GPS instead of fused (:func:`gps_reset_due`); a new reset event is counted in
+    ``counters[C_GPS_RESETS]``."""
+    reset, counted = gps_reset_due(mon, kind == GPS_POS, t, reject_s, outage_s)
+    if counted:
+        counters[C_GPS_RESETS] += 1
+    return reset

@@ -10,6 +10,8 @@ preallocated size are dropped and counted in ``counter[1]``. The filters' int64 
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 from numba import njit
 
@@ -28,6 +30,14 @@ C_UPDATES = 5  # scalar updates attempted
 C_OUTPUTS = 6  # output epochs written
 C_WIND_INITS = 7  # wind states set from the airspeed along the heading (full-state filters)
 N_SHARED_COUNTERS = 8
+
+
+class Recorder(NamedTuple):
+    """The recorder arrays of a kernel run, bundled for the helpers of its loop."""
+
+    diag_f: np.ndarray  # (capacity, len(DIAG_FLOAT_COLUMNS))
+    diag_i: np.ndarray  # int64 (capacity, len(DIAG_INT_COLUMNS))
+    counters: np.ndarray  # int64 (N_SHARED_COUNTERS + the filter's own,)
 
 
 def diagnostics_arrays(capacity: int) -> tuple[np.ndarray, np.ndarray]:

@@ -11,9 +11,11 @@
   one before every measurement update, so every update sees the covariance at its own time.
 * ``EVENT``: an output row (:data:`OUT_COLUMNS`) or a measurement: sequential scalar updates in Joseph form,
   re-linearised after each scalar, gated per sensor; every scalar update is recorded
-  (:mod:`estimators.core.recorder`). GPS events first go through the re-acquisition rule (docs/estimators.md,
-  'GPS re-acquisition', :func:`reset_to_gps`). Attitude-dependent updates stop above :data:`PITCH_GUARD_RAD`
-  (Euler singularity).
+  (:mod:`estimators.core.recorder`). Attitude-dependent updates stop above :data:`PITCH_GUARD_RAD` (Euler
+  singularity). Control apart from fusion (docs/direct.md, 'Control and fusion'): the GPS re-acquisition rule
+  (:func:`estimators.core.reacquisition.gps_control`, docs/estimators.md, 'GPS re-acquisition') and
+  :func:`wind_control` decide whether an event resets states (:func:`reset_to_gps`, :func:`initialise_wind`)
+  instead of being fused by :func:`_fuse`.
 
 Filter quantities (kernel arrays): ``x`` (n,) state, ``P`` (n, n) covariance (prior before, posterior after an
 update), ``nu`` innovation, ``s_var`` innovation variance, ``K = P H^T / s_var`` gain, ``NIS = nu^2 / s_var``,
@@ -46,13 +48,13 @@ from estimators.core.full_state import (
     wind_observed,
 )
 from estimators.core.recorder import (
-    C_GPS_RESETS,
     C_OUTPUTS,
     C_REPAIRS,
     C_RESETS,
     C_UPDATES,
     C_WIND_INITS,
     N_SHARED_COUNTERS,
+    Recorder,
 )
 from estimators.core.schedule import COVARIANCE, EVENT, PROPAGATE
 from estimators.direct import model
@@ -251,37 +253,98 @@ def _flush_covariance(P, x_cov, acc, settings, walk_psd, R_nb, S_euler, W_euler,
         acc[i] = 0.0
 
 
-@njit(cache=True, inline="always")  # a call would keep a reference-count pair per array argument (~20)
-def _update(x, P, kind, values, variances, t, settings, gps_mon, air_ok, x_err, R_nb, S_euler, W_euler, H, H3, h3,
-            dx, ph, T, work, diag_f, diag_i, counters):
-    """One measurement event at time ``t`` [s]: pitch guard, GPS re-acquisition, then the event's scalar updates
-    (see the module docstring). Returns the new ``air_ok`` (the last airspeed update was accepted)."""
-    n = x.shape[0]
-    layout = settings.layout
+class FusionWork(NamedTuple):
+    """Work arrays of the measurement control and fusion (``n`` states)."""
+
+    R_nb: np.ndarray  # (3, 3) body-to-NED rotation of the current attitude (scratch)
+    S_euler: np.ndarray  # (3, 3) Euler-rate matrices of the current attitude (scratch)
+    W_euler: np.ndarray  # (3, 3)
+    H: np.ndarray  # (n,) measurement row
+    H3: np.ndarray  # (3, n) sun rows
+    h3: np.ndarray  # (3,) predicted sun vector
+    dx: np.ndarray  # (n,) correction of one scalar update
+    ph: np.ndarray  # (n,) P H^T
+    x_err: np.ndarray  # (n,) error state of a paper-indirect group
+
+
+class DirectWork(NamedTuple):
+    """Preallocated work arrays of :func:`run_kernel` (``n`` states): the loop allocates nothing per sample."""
+
+    fusion: FusionWork
+    x_safe: np.ndarray  # (n,) the last output's state (divergence reset)
+    x_cov: np.ndarray  # (n,) state at the start of the accumulated covariance interval
+    acc: np.ndarray  # (7,) dt, sum gyro dt, sum accel dt since the last covariance propagation
+    mean_gyro: np.ndarray  # (3,) mean gyro of the interval [rad/s]
+    A: np.ndarray  # (n, n) continuous Jacobian; jacobian() and process_noise() write their non-zero blocks only
+    F: np.ndarray  # (n, n) transition; also the GPS reset transform and the wind-reset block
+    Qd: np.ndarray  # (n, n) discrete process noise
+    work: np.ndarray  # (n, n) scratch
+    k1: np.ndarray  # (n,) RK4 slopes and stage state
+    k2: np.ndarray
+    k3: np.ndarray
+    k4: np.ndarray
+    xt: np.ndarray
+    columns: np.ndarray  # int64 (n,) arange(n), the sparse rows of F (estimators.core.linalg.sparse_rows)
+    F_values: np.ndarray  # (N_DYNAMIC, n)
+    F_cols: np.ndarray  # int64 (N_DYNAMIC, n)
+    F_counts: np.ndarray  # int64 (N_DYNAMIC,)
+    out_row: np.ndarray  # (len(OUT_COLUMNS),) output row scratch
+
+
+@njit(cache=True)
+def _direct_work(x0, n_columns):
+    """The work arrays of a run from the initial state ``x0`` with ``n_columns`` output columns."""
+    n = x0.shape[0]
+    fusion = FusionWork(np.empty((3, 3)), np.empty((3, 3)), np.empty((3, 3)), np.empty(n), np.empty((3, n)),
+                        np.empty(3), np.empty(n), np.empty(n), np.zeros(n))
+    return DirectWork(fusion, x0.copy(), x0.copy(), np.zeros(7), np.empty(3), np.zeros((n, n)), np.empty((n, n)),
+                      np.zeros((n, n)), np.empty((n, n)), np.empty(n), np.empty(n), np.empty(n), np.empty(n),
+                      np.empty(n), np.arange(n), np.empty((N_DYNAMIC, n)), np.empty((N_DYNAMIC, n), dtype=np.int64),
+                      np.empty(N_DYNAMIC, dtype=np.int64), np.empty(n_columns))
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# control: when a measurement is fused, and when states are reset or re-initialised instead (docs/direct.md,
+# 'Control and fusion'): attitude_update_allowed, wind_control and the shared GPS rule
+# estimators.core.reacquisition.gps_control decide, the loop resets (reset_to_gps, initialise_wind) or fuses
+# (_fuse). Every array a numba call receives (loose or in a tuple) costs a reference-count pair per call, so the
+# controls take what they decide on and do not wrap the fusion; _fuse is inline="always" (one call site).
+
+
+@njit(cache=True)
+def attitude_update_allowed(x, kind, counters):
+    """Updates that depend on the attitude (all but the barometer and the GPS position) run below
+    :data:`PITCH_GUARD_RAD` of pitch (Euler singularity); a skipped one is counted (``C_PITCH_GUARD``)."""
     if abs(x[I_TH + 1]) > PITCH_GUARD_RAD and kind != BARO and kind != GPS_POS:
         counters[C_PITCH_GUARD] += 1
-        return air_ok
-    is_gps = kind in (GPS_POS, GPS_VEL)
-    if is_gps:
-        # (re)acquisition: position and velocity to the GPS, see reset_to_gps
-        reset, counted = reacquisition.gps_reset_due(gps_mon, kind == GPS_POS, t, settings.gps_reject_s,
-                                                     settings.gps_outage_s)
-        if reset:
-            reset_to_gps(x, P, kind, values, variances, layout, air_ok and layout[L_W] >= 0, R_nb, S_euler,
-                         W_euler, H, T, work)
-            if counted:
-                counters[C_GPS_RESETS] += 1
-            return air_ok
-    if kind == AIRSPEED and layout[L_W] >= 0 and (counters[C_WIND_INITS] == 0
-                                                  or air_flows_backwards(x, layout, R_nb, S_euler, W_euler)):
-        # first airspeed of the flight, or a wind that has the aircraft flying backwards: no update can leave
-        # that mirrored solution (it fits airspeed and sideslip as well), so the wind starts again from them
-        initialise_wind(x, P, values[0], layout, settings.P0, R_nb, S_euler, W_euler, T[:2, :2])
-        counters[C_WIND_INITS] += 1
-        return True
+        return False
+    return True
+
+
+@njit(cache=True)
+def wind_control(x, n_wind_inits, layout, R_nb, S_euler, W_euler):
+    """Wind (re)start at an airspeed event (wind states present): at the first airspeed of the flight
+    (``n_wind_inits`` = 0), or when the wind has the aircraft flying backwards (:func:`air_flows_backwards`; no
+    update can leave that mirrored solution, it fits airspeed and sideslip as well), the wind starts again from
+    the airspeed (:func:`initialise_wind`) instead of fusing it."""
+    return n_wind_inits == 0 or air_flows_backwards(x, layout, R_nb, S_euler, W_euler)
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# fusion
+
+
+@njit(cache=True, inline="always")
+def _fuse(x, P, kind, values, variances, t, settings, gps_mon, air_ok, w, diag_f, diag_i, counters):
+    """The event's sequential scalar updates (see the module docstring), each recorded; GPS components are booked
+    in the re-acquisition monitor ``gps_mon``. ``w``: :class:`FusionWork`. Returns the new ``air_ok``."""
+    n = x.shape[0]
+    layout = settings.layout
+    R_nb, S_euler, W_euler, H, H3, h3, x_err = w.R_nb, w.S_euler, w.W_euler, w.H, w.H3, w.h3, w.x_err
     field = settings.field_ned
     paper_indirect = settings.paper_indirect
     gate = settings.gates[kind]
+    is_gps = kind in (GPS_POS, GPS_VEL)
     c0, c1 = component_range(kind, values, settings.paper_gps_velocity, settings.min_ground_speed_m_s,
                              settings.mag_heading)
     if kind == SUN:
@@ -314,7 +377,7 @@ def _update(x, P, kind, values, variances, t, settings, gps_mon, air_ok, x_err, 
             # eq 49 corrected: innovation of the error state, z - h(x_hat-) - H x_err
             for i in range(n):
                 nu -= H[i] * x_err[i]
-        accepted, s_var, nis = linalg.scalar_update(P, H, nu, r_var, gate, dx, ph)
+        accepted, s_var, nis = linalg.scalar_update(P, H, nu, r_var, gate, w.dx, w.ph)
         counters[C_UPDATES] += 1
         recorder.record_update(diag_f, diag_i, counters, t, kind, c, nu, s_var, nis, accepted)
         if is_gps:
@@ -324,10 +387,10 @@ def _update(x, P, kind, values, variances, t, settings, gps_mon, air_ok, x_err, 
         if accepted:
             if paper_indirect:
                 for i in range(n):
-                    x_err[i] += dx[i]
+                    x_err[i] += w.dx[i]
             else:
                 for i in range(n):
-                    x[i] += dx[i]
+                    x[i] += w.dx[i]
                 x[I_TH] = rotations.wrap_pi(x[I_TH])
                 x[I_TH + 2] = rotations.wrap_pi(x[I_TH + 2])
     if paper_indirect:
@@ -360,37 +423,27 @@ def run_kernel(imu_gyro, imu_accel, ev_kind, ev_val, ev_var, op, op_dt, op_index
     -------
     x, P : the final state and covariance.
     """
-    x0, P0, layout = settings.x0, settings.P0, settings.layout
-    n = x0.shape[0]
-    x = x0.copy()
-    P = P0.copy()
-    x_safe = x0.copy()
-    x_cov = x0.copy()
-    x_err = np.zeros(n)
-    R_nb = np.empty((3, 3))
-    S_euler = np.empty((3, 3))
-    W_euler = np.empty((3, 3))
-    A = np.zeros((n, n))  # jacobian() and process_noise() write their non-zero blocks only
-    F = np.empty((n, n))
-    Qd = np.zeros((n, n))
-    work = np.empty((n, n))
-    H = np.empty(n)
-    H3 = np.empty((3, n))
-    dx = np.empty(n)
-    ph = np.empty(n)
-    k1 = np.empty(n)
-    k2 = np.empty(n)
-    k3 = np.empty(n)
-    k4 = np.empty(n)
-    xt = np.empty(n)
-    h3 = np.empty(3)
-    out_row = np.empty(out_f.shape[1])
-    acc = np.zeros(7)  # dt, sum gyro dt, sum accel dt
-    mean_gyro = np.empty(3)
-    columns = np.arange(n)
-    F_values = np.empty((N_DYNAMIC, n))
-    F_cols = np.empty((N_DYNAMIC, n), dtype=np.int64)
-    F_counts = np.empty(N_DYNAMIC, dtype=np.int64)
+    x = settings.x0.copy()
+    P = settings.P0.copy()
+    _loop(imu_gyro, imu_accel, ev_kind, ev_val, ev_var, op, op_dt, op_index, settings, x, P,
+          _direct_work(x, out_f.shape[1]), out_f, out_x, out_sx, Recorder(diag_f, diag_i, counters))
+    return x, P
+
+
+@njit(cache=True, inline="always")  # compiled once, in run_kernel (a callee linked in is optimised again)
+def _loop(imu_gyro, imu_accel, ev_kind, ev_val, ev_var, op, op_dt, op_index, settings, x, P, w, out_f, out_x, out_sx,
+          rec):
+    """The loop of :func:`run_kernel` over the schedule from the state ``x`` and covariance ``P`` (in place), with
+    its work arrays ``w`` (:class:`DirectWork`) and recorder arrays ``rec`` bundled (called once: the bundles are
+    unpacked here, so that every operation passes its step the arrays it uses)."""
+    P0, layout = settings.P0, settings.layout
+    n = x.shape[0]
+    fw, x_safe, x_cov, acc, mean_gyro = w.fusion, w.x_safe, w.x_cov, w.acc, w.mean_gyro
+    A, F, Qd, work = w.A, w.F, w.Qd, w.work
+    R_nb, S_euler, W_euler, H = fw.R_nb, fw.S_euler, fw.W_euler, fw.H
+    k1, k2, k3, k4, xt, out_row = w.k1, w.k2, w.k3, w.k4, w.xt, w.out_row
+    columns, F_values, F_cols, F_counts = w.columns, w.F_values, w.F_cols, w.F_counts
+    diag_f, diag_i, counters = rec
     g = settings.gravity_m_s2
     gps_mon = reacquisition.gps_monitor()
     air_ok = False  # the last airspeed update was accepted (reset_to_gps)
@@ -420,29 +473,40 @@ def run_kernel(imu_gyro, imu_accel, ev_kind, ev_val, ev_var, op, op_dt, op_index
             t = op_dt[s]
             j = op_index[s]
             kind = ev_kind[j]
+            values, variances = ev_val[j], ev_var[j]
             t_now = t
             t_wind_observed = wind_observed(kind, t, t_wind_observed)
-            if kind != OUTPUT:
-                air_ok = _update(x, P, kind, ev_val[j], ev_var[j], t, settings, gps_mon, air_ok, x_err, R_nb,
-                                 S_euler, W_euler, H, H3, h3, dx, ph, F, work, diag_f, diag_i, counters)
-                continue
-            # P is checked at every covariance step and updates keep it finite; the state integrated since then
-            # is checked here
-            finite = True
-            for i in range(n):
-                if not math.isfinite(x[i]):
-                    finite = False
-            if not finite:
-                linalg.reset_filter(x, P, x_safe, P0)
-                counters[C_RESETS] += 1
-            for i in range(n):
-                x_safe[i] = x[i]
-            _output_row(x, P, layout, R_nb, S_euler, W_euler, H, t, out_row)
-            recorder.record_output(out_f, n_out, out_row)
-            if n_out < out_x.shape[0]:
+            if kind == OUTPUT:
+                # P is checked at every covariance step and updates keep it finite; the state integrated since
+                # then is checked here
+                finite = True
                 for i in range(n):
-                    out_x[n_out, i] = x[i]
-                    out_sx[n_out, i] = math.sqrt(max(P[i, i], 0.0))
-            n_out += 1
+                    if not math.isfinite(x[i]):
+                        finite = False
+                if not finite:
+                    linalg.reset_filter(x, P, x_safe, P0)
+                    counters[C_RESETS] += 1
+                for i in range(n):
+                    x_safe[i] = x[i]
+                _output_row(x, P, layout, R_nb, S_euler, W_euler, H, t, out_row)
+                recorder.record_output(out_f, n_out, out_row)
+                if n_out < out_x.shape[0]:
+                    for i in range(n):
+                        out_x[n_out, i] = x[i]
+                        out_sx[n_out, i] = math.sqrt(max(P[i, i], 0.0))
+                n_out += 1
+            elif attitude_update_allowed(x, kind, counters):
+                if kind in (GPS_POS, GPS_VEL) and reacquisition.gps_control(gps_mon, kind, t, settings.gps_reject_s,
+                                                                            settings.gps_outage_s, counters):
+                    # (re)acquisition: position or velocity to the GPS, the wind moved along when the airspeed agreed
+                    reset_to_gps(x, P, kind, values, variances, layout, air_ok and layout[L_W] >= 0, R_nb, S_euler,
+                                 W_euler, H, F, work)
+                elif kind == AIRSPEED and layout[L_W] >= 0 and wind_control(x, counters[C_WIND_INITS], layout, R_nb,
+                                                                            S_euler, W_euler):
+                    initialise_wind(x, P, values[0], layout, P0, R_nb, S_euler, W_euler, F[:2, :2])
+                    counters[C_WIND_INITS] += 1
+                    air_ok = True
+                else:
+                    air_ok = _fuse(x, P, kind, values, variances, t, settings, gps_mon, air_ok, fw, diag_f, diag_i,
+                                   counters)
     counters[C_OUTPUTS] = n_out
-    return x, P

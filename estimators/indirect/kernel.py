@@ -24,8 +24,10 @@ updates.
   :mod:`estimators.indirect.measurements`). Within a group the error estimate accumulates with the linearised
   innovation ``z - h(x_hat) - H dx`` (eq 49 corrected); then ``x_hat <- x_hat (+) dx``, ``P <- G P G^T`` with
   ``G_thth = I - [dtheta/2]x`` and ``dx <- 0`` (docs/indirect.md, 'Injection and reset'; ``inject_scalar``: after
-  every scalar). GPS (re)acquisition resets the position or velocity (:func:`reset_to_gps`, docs/estimators.md,
-  'GPS re-acquisition').
+  every scalar). Control apart from fusion (docs/indirect.md, 'Control and fusion'): the GPS (re)acquisition
+  rule (:func:`estimators.core.reacquisition.gps_control`, docs/estimators.md, 'GPS re-acquisition') and
+  :func:`wind_control` decide whether an event resets the position or velocity (:func:`reset_to_gps`) or
+  (re)starts the wind (:func:`initialise_wind`) instead of the fusion :func:`_fuse`.
 
 Filter quantities (kernel arrays): ``x`` (NX,) nominal state, ``P`` (n, n) error covariance over the active error
 states ``sel`` (prior before, posterior after an update), ``nu`` innovation, ``S`` innovation variance,
@@ -52,13 +54,13 @@ from estimators.core.full_state import (
     wind_observed,
 )
 from estimators.core.recorder import (
-    C_GPS_RESETS,
     C_OUTPUTS,
     C_REPAIRS,
     C_RESETS,
     C_UPDATES,
     C_WIND_INITS,
     N_SHARED_COUNTERS,
+    Recorder,
 )
 from estimators.core.schedule import COVARIANCE, EVENT, PROPAGATE
 from estimators.indirect import model as m
@@ -283,8 +285,27 @@ def _write_output(out_f, out_sd, row, t, x, P):
     out_sd[row, n + 2] = P[m.E_TH + 1, m.E_TH + 2]
 
 
+# ----------------------------------------------------------------------------------------------------------------
+# control: when a measurement is fused, and when states are reset or re-initialised instead (docs/indirect.md,
+# 'Control and fusion'): wind_control and the shared GPS rule estimators.core.reacquisition.gps_control decide,
+# the loop resets (reset_to_gps, initialise_wind) or fuses (_fuse)
+
+
 @njit(cache=True)
-def _update(x, P, t, kind, values, variances, gyro, settings, w, gps_mon, diag_f, diag_i, counters):
+def wind_control(x, n_wind_inits):
+    """Wind (re)start at an airspeed event (wind states active): at the first airspeed of the flight
+    (``n_wind_inits`` = 0), or when the wind has the aircraft flying backwards (:func:`air_flows_backwards`; no
+    update can leave that mirrored solution, it fits airspeed and sideslip as well), the wind starts again from
+    the airspeed (:func:`initialise_wind`) instead of fusing it."""
+    return n_wind_inits == 0 or air_flows_backwards(x)
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# fusion
+
+
+@njit(cache=True)
+def _fuse(x, P, t, kind, values, variances, gyro, settings, w, gps_mon, rec):
     """The sequential scalar updates of one measurement event (a group), injected after the group (or after every
     scalar with ``settings.inject_scalar``). Returns whether the last scalar was accepted."""
     s = settings
@@ -323,8 +344,8 @@ def _update(x, P, t, kind, values, variances, gyro, settings, w, gps_mon, diag_f
         for a in range(n):
             w.H[a] = H_full[sel[a]]
         accepted, s_var, nis = linalg.scalar_update(P, w.H, nu, r_var, s.gates[kind], w.dx_r, w.ph)
-        counters[C_UPDATES] += 1
-        recorder.record_update(diag_f, diag_i, counters, t, kind, c, nu, s_var, nis, accepted)
+        rec.counters[C_UPDATES] += 1
+        recorder.record_update(rec.diag_f, rec.diag_i, rec.counters, t, kind, c, nu, s_var, nis, accepted)
         if is_gps:
             reacquisition.gps_record(gps_mon, kind == GPS_POS, c, t, accepted)
         if accepted:
@@ -371,6 +392,7 @@ def run_kernel(imu_gyro, imu_accel, ev_kind, ev_imu, ev_val, ev_var, op, op_dt, 
     P = s.P0.copy()
     x_safe = s.x0.copy()
     w = kernel_work(s)
+    rec = Recorder(diag_f, diag_i, counters)
     acc = w.acc
     gps_mon = reacquisition.gps_monitor()
     air_ok = False  # the last airspeed update was accepted (reset_to_gps)
@@ -411,24 +433,18 @@ def run_kernel(imu_gyro, imu_accel, ev_kind, ev_imu, ev_val, ev_var, op, op_dt, 
                 n_out += 1
                 continue
             gyro = imu_gyro[min(ev_imu[j], last_row)]  # the rate of the event's IMU interval
-            if kind in (GPS_POS, GPS_VEL):
-                # (re)acquisition: position and velocity to the GPS, see reset_to_gps
-                reset, counted = reacquisition.gps_reset_due(gps_mon, kind == GPS_POS, t, s.gps_reject_s,
-                                                             s.gps_outage_s)
-                if reset:
-                    reset_to_gps(x, P, kind, values, ev_var[j], s.field_ned, s.lever_arm_m, gyro, s.sel,
-                                 air_ok and wind_active, w.H_full, w.block3, w.T, w.work)
-                    if counted:
-                        counters[C_GPS_RESETS] += 1
-                    continue
-            if kind == AIRSPEED and wind_active and (counters[C_WIND_INITS] == 0 or air_flows_backwards(x)):
-                # first airspeed of the flight, or a wind that has the aircraft flying backwards: no update can
-                # leave that mirrored solution (it fits airspeed and sideslip as well), so the wind starts again
+            if kind in (GPS_POS, GPS_VEL) and reacquisition.gps_control(gps_mon, kind, t, s.gps_reject_s,
+                                                                        s.gps_outage_s, counters):
+                # (re)acquisition: position or velocity to the GPS, the wind moved along when the airspeed agreed
+                reset_to_gps(x, P, kind, values, ev_var[j], s.field_ned, s.lever_arm_m, gyro, s.sel,
+                             air_ok and wind_active, w.H_full, w.block3, w.T, w.work)
+                continue
+            if kind == AIRSPEED and wind_active and wind_control(x, counters[C_WIND_INITS]):
                 initialise_wind(x, P, values[0], aw, s.P0, w.block3[:2, :2])
                 counters[C_WIND_INITS] += 1
                 air_ok = True
                 continue
-            accepted = _update(x, P, t, kind, values, ev_var[j], gyro, s, w, gps_mon, diag_f, diag_i, counters)
+            accepted = _fuse(x, P, t, kind, values, ev_var[j], gyro, s, w, gps_mon, rec)
             if kind == AIRSPEED:
                 air_ok = accepted
     counters[C_OUTPUTS] = n_out

@@ -32,6 +32,8 @@ Event values and variances per kind: :mod:`estimators.inputs.records`.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 import pandas as pd
@@ -50,7 +52,6 @@ from estimators.inputs.records import (
     OUTPUT,
     SENSOR_NAMES,
     SIDESLIP,
-    SUN,
     ZERO_VELOCITY,
     GpsRows,
     ImuSamples,
@@ -59,6 +60,7 @@ from estimators.inputs.records import (
     ReplayInputs,
     SensorPlan,
 )
+from estimators.inputs.sun_events import sun_heading_events
 from ingest.errors import InputError
 from ingest.flightlog import FlightLog
 
@@ -120,127 +122,164 @@ def build_replay_inputs(flight_log: FlightLog, config: EstimatorConfig | None = 
         raise InputError(f"output rate must be in (0, 1000] Hz, got {rate_hz!r}", field="rate_hz")
     if heading not in HEADING_SOURCES:
         raise InputError(f"heading must be one of {', '.join(HEADING_SOURCES)}, got {heading!r}", field="heading")
-    warnings: list[str] = []
-    imu = _imu_samples(flight_log, config, warnings)
+    notes = _Notes()
+    imu = _imu_samples(flight_log, config, notes.warnings)
     t_start, t_end = float(imu.time_s[0]), float(imu.time_s[-1])
     _check_epoch_count(t_start, t_end, max(rate_hz, config.timing.pseudo_rate_hz), len(imu.time_s), source)
     fixed_wing = bool(flight_log.meta.is_fixed_wing)
     if flight_log.meta.vehicle_type is None:
-        warnings.append("MAV_TYPE missing: multicopter assumptions (no fixed-wing pseudo-measurements)")
-    skipped: dict[str, str] = {}
-    degradations: list[str] = []
-    parts: list[tuple[np.ndarray, int, np.ndarray, np.ndarray]] = []
+        notes.warnings.append("MAV_TYPE missing: multicopter assumptions (no fixed-wing pseudo-measurements)")
 
     gps_delay_s, delay_source = _gps_delay_s(flight_log, config)
-    gps = _gps_rows(flight_log, gps_delay_s, delay_source, skipped)
+    gps = _gps_rows(flight_log, gps_delay_s, delay_source, notes.skipped)
     origin = _origin(flight_log, gps)
     gravity = float(environment.local_gravity_m_s2(origin.lat_deg if origin.source == "gps" else 45.0,
                                                    origin.alt_m))
     if gps is not None:
-        parts += _gps_events(gps, origin, config)
+        notes.parts += _gps_events(gps, origin, config)
     else:
-        degradations.append("no GPS: attitude and height only; zero-velocity pseudo-measurement keeps the tilt "
-                            "observable; no position or velocity output")
+        notes.degradations.append("no GPS: attitude and height only; zero-velocity pseudo-measurement keeps the "
+                                  "tilt observable; no position or velocity output")
+    baro, baro_offset_m = _baro_events(flight_log, gps, origin, config, notes)
+    mag = _mag_events(flight_log, heading, origin, imu, config, notes)
+    sun_part = sun_heading_events(flight_log, heading, sun_observations, origin, source, notes.warnings)
+    if sun_part is not None:
+        notes.parts.append(sun_part)
+    airspeed = _airspeed_events(flight_log, gps, fixed_wing, config, notes)
+    _pseudo_events(t_start, t_end, fixed_wing, airspeed, gps, config, notes)
 
+    alignment, mag_rejection = initial_alignment(flight_log, imu, gps, mag.rows, mag.field_ned, mag.strength_gauss,
+                                                 sun_part, origin, baro, baro_offset_m, gravity, config,
+                                                 notes.warnings)
+    mag_rows = mag.rows
+    if mag_rejection is not None:
+        notes.skipped["mag"] = mag_rejection
+        notes.parts = [part for part in notes.parts if part[1] != MAG]
+        mag_rows = None
+    if mag_rows is None and sun_part is None:
+        notes.degradations.append("no absolute heading (magnetometer/sun): yaw dead-reckoned from the gyro"
+                                  + (" from the autopilot's initial yaw"
+                                     if alignment.yaw_source == "onboard_attitude" else ""))
+    output_time_s = np.arange(math.ceil(t_start * rate_hz - 1e-9), math.floor(t_end * rate_hz + 1e-9) + 1) / rate_hz
+    notes.parts.append((output_time_s, OUTPUT, np.zeros((len(output_time_s), 0)),
+                        np.zeros((len(output_time_s), 0))))
+    events = _merge_events(notes.parts, imu.time_s)
+    used = tuple(SENSOR_NAMES[k] for k in range(OUTPUT) if events.count(k) > 0)
+    plan = SensorPlan(fixed_wing=fixed_wing, has_gps=gps is not None, has_baro=baro is not None,
+                      has_mag=mag_rows is not None, has_airspeed=airspeed is not None, has_sun=sun_part is not None,
+                      used=used, skipped=notes.skipped, degradations=tuple(notes.degradations),
+                      mag_fusion=mag.fusion)
+    return ReplayInputs(imu=imu, events=events, origin=origin, plan=plan, alignment=alignment,
+                        mag_field_ned=mag.field_ned, mag_strength_gauss=mag.strength_gauss,
+                        mag_field_source=mag.field_source, gravity_m_s2=gravity, gps_delay_s=gps_delay_s,
+                        gps_time_rule=gps.time_rule if gps is not None else "", baro_offset_m=baro_offset_m,
+                        output_time_s=output_time_s, source=source, warnings=tuple(notes.warnings))
+
+
+@dataclass
+class _Notes:
+    """What :func:`build_replay_inputs` collects while it reads the streams: the event parts
+    ``(time_s, kind, values, variances)`` and the sensor plan's notes."""
+
+    parts: list[tuple[np.ndarray, int, np.ndarray, np.ndarray]] = field(default_factory=list)
+    skipped: dict[str, str] = field(default_factory=dict)
+    warnings: list[str] = field(default_factory=list)
+    degradations: list[str] = field(default_factory=list)
+
+
+class _Magnetometer(NamedTuple):
+    """The magnetometer as the replay uses it: rows ``(time_s, field [gauss])`` (None: not used), the unit earth
+    field NED, the median measured strength [gauss], the field's source and the fusion form."""
+
+    rows: tuple[np.ndarray, np.ndarray] | None
+    field_ned: np.ndarray
+    strength_gauss: float
+    field_source: str
+    fusion: str
+
+
+def _baro_events(flight_log: FlightLog, gps: GpsRows | None, origin: Origin, config: EstimatorConfig,
+                 notes: _Notes):
+    """Barometer height events above the origin (offset to the GPS height); returns the rows and the offset [m]."""
     baro_offset_m = 0.0
-    baro = _sensor_rows(flight_log, "baro", ("alt_m",), skipped)
-    if baro is not None:
-        baro_t, baro_alt = baro[0], baro[1][:, 0]
-        if gps is not None:
-            baro_offset_m = _baro_offset_m(baro_t, baro_alt, gps)
-        z = baro_alt - baro_offset_m - origin.alt_m
-        parts.append((baro_t, BARO, z[:, None], np.full((len(z), 1), config.noise.baro_sigma_m ** 2)))
-    else:
-        degradations.append("no barometer: height from GPS only")
+    baro = _sensor_rows(flight_log, "baro", ("alt_m",), notes.skipped)
+    if baro is None:
+        notes.degradations.append("no barometer: height from GPS only")
+        return None, baro_offset_m
+    baro_t, baro_alt = baro[0], baro[1][:, 0]
+    if gps is not None:
+        baro_offset_m = _baro_offset_m(baro_t, baro_alt, gps)
+    z = baro_alt - baro_offset_m - origin.alt_m
+    notes.parts.append((baro_t, BARO, z[:, None], np.full((len(z), 1), config.noise.baro_sigma_m ** 2)))
+    return baro, baro_offset_m
 
-    mag_field, mag_strength, mag_field_source = np.zeros(3), 1.0, "none"
-    use_mag = heading in ("mag", "mag+sun")
-    mag = _sensor_rows(flight_log, "mag", ("mag_x_gauss", "mag_y_gauss", "mag_z_gauss"), skipped)
+
+def _mag_events(flight_log: FlightLog, heading: str, origin: Origin, imu: ImuSamples, config: EstimatorConfig,
+                notes: _Notes) -> _Magnetometer:
+    """Magnetometer events (field over its median strength) when the stream is plausible and a heading source."""
+    mag = _sensor_rows(flight_log, "mag", ("mag_x_gauss", "mag_y_gauss", "mag_z_gauss"), notes.skipped)
     if mag is not None:
         strength = float(np.median(np.linalg.norm(mag[1], axis=1)))
         if not MAG_STRENGTH_RANGE_GAUSS[0] <= strength <= MAG_STRENGTH_RANGE_GAUSS[1]:
-            skipped["mag"] = (f"median field strength {strength:.3f} gauss outside "
-                              f"{MAG_STRENGTH_RANGE_GAUSS[0]}-{MAG_STRENGTH_RANGE_GAUSS[1]} gauss")
+            notes.skipped["mag"] = (f"median field strength {strength:.3f} gauss outside "
+                                    f"{MAG_STRENGTH_RANGE_GAUSS[0]}-{MAG_STRENGTH_RANGE_GAUSS[1]} gauss")
             mag = None
-        elif not use_mag:
-            skipped["mag"] = f"heading source is {heading!r}"
+        elif heading not in ("mag", "mag+sun"):
+            notes.skipped["mag"] = f"heading source is {heading!r}"
             mag = None
-    mag_fusion = "none"
-    if mag is not None:
-        mag_strength = strength
-        mag_field, mag_field_source = _earth_field_unit(flight_log, origin, mag, imu, config, warnings)
-        mag_fusion = _mag_fusion(mag[1], strength, config, degradations)
-        values = mag[1] / mag_strength
-        mag_sigma = config.noise.mag_sigma_axes or (config.noise.mag_sigma,) * 3
-        parts.append((mag[0], MAG, values, np.broadcast_to(np.square(mag_sigma), values.shape).copy()))
+    if mag is None:
+        return _Magnetometer(None, np.zeros(3), 1.0, "none", "none")
+    field_ned, field_source = _earth_field_unit(flight_log, origin, mag, imu, config, notes.warnings)
+    fusion = _mag_fusion(mag[1], strength, config, notes.degradations)
+    values = mag[1] / strength
+    mag_sigma = config.noise.mag_sigma_axes or (config.noise.mag_sigma,) * 3
+    notes.parts.append((mag[0], MAG, values, np.broadcast_to(np.square(mag_sigma), values.shape).copy()))
+    return _Magnetometer(mag, field_ned, strength, field_source, fusion)
 
-    has_sun, sun_part = False, None
-    if heading in ("sun", "mag+sun"):
-        if sun_observations is None and flight_log.has("sun"):
-            sun_observations = sun_observations_from_log(flight_log, origin, warnings)
-        if sun_observations is None or len(sun_observations) == 0:
-            raise InputError(f"heading {heading!r} needs sun-vector observations (a sun-device CSV with the sun "
-                             "above the horizon and a GPS fix for the ephemeris)", source=source, field="heading")
-        sun_part = _sun_events(sun_observations, source)
-        parts.append(sun_part)
-        has_sun = True
 
-    airspeed = _sensor_rows(flight_log, "airspeed", ("tas_m_s",), skipped)
+def _airspeed_events(flight_log: FlightLog, gps: GpsRows | None, fixed_wing: bool, config: EstimatorConfig,
+                     notes: _Notes):
+    """True-airspeed events while flying; returns the rows (None: no airspeed, no wind states)."""
+    airspeed = _sensor_rows(flight_log, "airspeed", ("tas_m_s",), notes.skipped)
     if airspeed is not None:
         tas_t, tas = airspeed[0], airspeed[1][:, 0]
         if np.nanstd(tas) < 0.1:
-            skipped["airspeed"] = "true airspeed constant"
+            notes.skipped["airspeed"] = "true airspeed constant"
             airspeed = None
         else:
             # a fixed-wing pitot on the ground reads the wind, not flight through the air
             flying = (_airborne(tas_t, airspeed, gps, config) if fixed_wing
                       else tas > config.timing.min_airspeed_m_s)
             if not flying.any():
-                skipped["airspeed"] = (f"never above {config.timing.min_airspeed_m_s} m/s"
-                                       + (f" with a ground speed above {config.timing.min_ground_speed_m_s} m/s"
-                                          if fixed_wing else ""))
+                notes.skipped["airspeed"] = (f"never above {config.timing.min_airspeed_m_s} m/s"
+                                             + (f" with a ground speed above {config.timing.min_ground_speed_m_s} "
+                                                "m/s" if fixed_wing else ""))
                 airspeed = None
             else:
-                parts.append((tas_t[flying], AIRSPEED, tas[flying, None],
-                              np.full((int(flying.sum()), 1), config.noise.airspeed_sigma_m_s ** 2)))
+                notes.parts.append((tas_t[flying], AIRSPEED, tas[flying, None],
+                                    np.full((int(flying.sum()), 1), config.noise.airspeed_sigma_m_s ** 2)))
     if airspeed is None:
-        degradations.append("no airspeed: no wind states, no airspeed update")
+        notes.degradations.append("no airspeed: no wind states, no airspeed update")
+    return airspeed
+
+
+def _pseudo_events(t_start: float, t_end: float, fixed_wing: bool, airspeed, gps: GpsRows | None,
+                   config: EstimatorConfig, notes: _Notes) -> None:
+    """Pseudo-measurements at ``timing.pseudo_rate_hz``: zero sideslip while a fixed wing flies, zero velocity
+    without GPS (docs/estimators.md, 'Sensor plan')."""
     if fixed_wing:
         pseudo_t = _pseudo_times(t_start, t_end, config.timing.pseudo_rate_hz)
         airborne = _airborne(pseudo_t, airspeed, gps, config)
         sigma = config.noise.sideslip_sigma_m_s if airspeed is not None else config.noise.sideslip_no_wind_sigma_m_s
         times = pseudo_t[airborne]
-        parts.append((times, SIDESLIP, np.zeros((len(times), 1)), np.full((len(times), 1), sigma ** 2)))
+        notes.parts.append((times, SIDESLIP, np.zeros((len(times), 1)), np.full((len(times), 1), sigma ** 2)))
     else:
-        skipped["sideslip"] = "not a fixed-wing vehicle (MAV_TYPE)"
-        degradations.append("multicopter: no fixed-wing pseudo-measurements")
+        notes.skipped["sideslip"] = "not a fixed-wing vehicle (MAV_TYPE)"
+        notes.degradations.append("multicopter: no fixed-wing pseudo-measurements")
     if gps is None:
         times = _pseudo_times(t_start, t_end, config.timing.pseudo_rate_hz)
-        parts.append((times, ZERO_VELOCITY, np.zeros((len(times), 3)),
-                      np.full((len(times), 3), config.noise.zero_velocity_sigma_m_s ** 2)))
-
-    alignment, mag_rejection = initial_alignment(flight_log, imu, gps, mag, mag_field, mag_strength, sun_part, origin,
-                                          baro, baro_offset_m, gravity, config, warnings)
-    if mag_rejection is not None:
-        skipped["mag"] = mag_rejection
-        parts = [part for part in parts if part[1] != MAG]
-        mag = None
-    if mag is None and not has_sun:
-        degradations.append("no absolute heading (magnetometer/sun): yaw dead-reckoned from the gyro"
-                            + (" from the autopilot's initial yaw" if alignment.yaw_source == "onboard_attitude"
-                               else ""))
-    output_time_s = np.arange(math.ceil(t_start * rate_hz - 1e-9), math.floor(t_end * rate_hz + 1e-9) + 1) / rate_hz
-    parts.append((output_time_s, OUTPUT, np.zeros((len(output_time_s), 0)), np.zeros((len(output_time_s), 0))))
-    events = _merge_events(parts, imu.time_s)
-    used = tuple(SENSOR_NAMES[k] for k in range(OUTPUT) if events.count(k) > 0)
-    plan = SensorPlan(fixed_wing=fixed_wing, has_gps=gps is not None, has_baro=baro is not None,
-                      has_mag=mag is not None, has_airspeed=airspeed is not None, has_sun=has_sun, used=used,
-                      skipped=skipped, degradations=tuple(degradations), mag_fusion=mag_fusion)
-    return ReplayInputs(imu=imu, events=events, origin=origin, plan=plan, alignment=alignment,
-                        mag_field_ned=mag_field, mag_strength_gauss=mag_strength, mag_field_source=mag_field_source,
-                        gravity_m_s2=gravity, gps_delay_s=gps_delay_s,
-                        gps_time_rule=gps.time_rule if gps is not None else "", baro_offset_m=baro_offset_m,
-                        output_time_s=output_time_s, source=source, warnings=tuple(warnings))
+        notes.parts.append((times, ZERO_VELOCITY, np.zeros((len(times), 3)),
+                            np.full((len(times), 3), config.noise.zero_velocity_sigma_m_s ** 2)))
 
 
 # ----------------------------------------------------------------------------------------------------------------
@@ -457,50 +496,6 @@ def _decimal_year(flight_log: FlightLog) -> float | None:
         return None
     t0 = float(flight_log["imu"].index[0])
     return environment.decimal_year(pd.Timestamp(t0 + offset, unit="s"))
-
-
-def sun_observations_from_log(flight_log: FlightLog, origin: Origin, warnings: list[str]) -> pd.DataFrame | None:
-    """Sun-vector observations from the log's photocell currents (:func:`estimators.sun.solver.solve_sun_log`)
-    and the sun's NED direction at the origin (NREL SPA on a 1 Hz grid, :func:`estimators.sun.prediction.sun_ned_at`).
-
-    Returns None when the log has no GPS position or no UTC time (the ephemeris needs both). Epochs without a
-    solution or with the sun below :data:`estimators.environment.MIN_SUN_ELEVATION_DEG` are dropped.
-    """
-    from estimators.sun.prediction import sun_ned_at
-    from estimators.sun.solver import solve_sun_log
-
-    if origin.source != "gps" or flight_log.meta.utc_offset_s is None:
-        warnings.append("sun heading: no GPS position or UTC time for the ephemeris; sun vector not used")
-        return None
-    solved = solve_sun_log(flight_log["sun"], device=flight_log.meta.sun_device)
-    solved = solved[solved["status"] == "ok"]
-    if solved.empty:
-        warnings.append("sun heading: no epoch with a valid sun-vector solution")
-        return None
-    time_s = solved["time_s"].to_numpy(dtype=float)
-    s_ned, elevation = sun_ned_at(flight_log, time_s, origin=(origin.lat_deg, origin.lon_deg, origin.alt_m))
-    keep = elevation > environment.MIN_SUN_ELEVATION_DEG
-    if not keep.any():
-        warnings.append("sun heading: the sun is below the horizon limit during the whole log")
-        return None
-    return pd.DataFrame({"sun_x": solved["sun_x"].to_numpy()[keep], "sun_y": solved["sun_y"].to_numpy()[keep],
-                         "sun_z": solved["sun_z"].to_numpy()[keep], "sun_n": s_ned[keep, 0], "sun_e": s_ned[keep, 1],
-                         "sun_d": s_ned[keep, 2], "sigma_rad": solved["sigma_rad"].to_numpy()[keep]},
-                        index=pd.Index(time_s[keep], name="time_s"))
-
-
-def _sun_events(observations: pd.DataFrame, source: str):
-    columns = ("sun_x", "sun_y", "sun_z", "sun_n", "sun_e", "sun_d", "sigma_rad")
-    missing = [c for c in columns if c not in observations.columns]
-    if missing:
-        raise InputError(f"sun observations lack columns {missing}", source=source, field="sun")
-    time_s = observations.index.to_numpy(dtype=float)
-    data = observations.loc[:, list(columns)].to_numpy(dtype=float)
-    keep = np.isfinite(time_s) & np.isfinite(data).all(axis=1) & (data[:, 6] > 0)
-    time_s, data = time_s[keep], data[keep]
-    variances = np.zeros((len(time_s), 2))
-    variances[:, 0] = variances[:, 1] = data[:, 6] ** 2
-    return time_s, SUN, data[:, :6], variances
 
 
 def _check_epoch_count(t_start: float, t_end: float, rate_hz: float, n_imu: int, source: str) -> None:

@@ -237,6 +237,75 @@ def _classification_holds(normals, s, usable, lit, dark, cos_lit_min, cos_dark_m
 
 
 @njit(cache=True)
+def _worst_row(current, normals, sky_factor, st, lit, dark, sigma, use_sky, sky_weight, use_k, k_weight, vec, mat):
+    """The row with the largest studentised residual beyond ``st.kappa`` of the fit in ``vec``/``mat``: a cell
+    index, ``n_cells`` (the sky prior), ``n_cells + 1`` (the k prior) or -1 (none); and the cells' residual sum of
+    squares [A^2]. Studentised: ``w = r / (sigma sqrt(1 - h))`` of a cell, ``sqrt(weight) r / (sigma sqrt(1 - h))``
+    of a prior row; the largest is the best leave-one-out candidate."""
+    n_cells = current.shape[0]
+    s, solution, m_inv = vec[_S], vec[_SOLUTION], mat[_INVERSE]
+    rss = 0.0
+    worst = -1
+    worst_w = st.kappa
+    for i in range(n_cells):
+        if lit[i] or dark[i]:
+            residual, leverage = _residual_leverage(current, normals, sky_factor, lit, i, vec, mat)
+            rss += residual * residual
+            if leverage < 1.0 - 1e-9 and abs(residual) > worst_w * sigma * np.sqrt(1.0 - leverage):
+                worst_w = abs(residual) / (sigma * np.sqrt(1.0 - leverage))
+                worst = i
+    if use_sky:
+        residual = st.sky_prior_a - solution[3]
+        leverage = sky_weight * m_inv[3, 3]
+        w = abs(residual) * np.sqrt(sky_weight) / (sigma * np.sqrt(max(1.0 - leverage, 1e-12)))
+        if w > worst_w:
+            worst_w = w
+            worst = n_cells
+    if use_k:
+        residual = st.k_prior_a
+        leverage = 0.0
+        for p in range(3):
+            residual -= s[p] * solution[p]
+            for q in range(3):
+                leverage += s[p] * m_inv[p, q] * s[q]
+        leverage *= k_weight
+        w = abs(residual) * np.sqrt(k_weight) / (sigma * np.sqrt(max(1.0 - leverage, 1e-12)))
+        if w > worst_w:
+            worst = n_cells + 1
+    return worst, rss
+
+
+@njit(cache=True)
+def _readmit(current, normals, sky_factor, st, sigma, flags, vec, mat):
+    """At a fixed point of :func:`_refine`: book the fitted cells (``flags[_USED]``, lit ones in
+    ``flags[_FIT_LIT]``), re-admit the excluded cells the fit predicts (once each) and mark the faulty ones
+    (``flags[_FAULTY]``). Returns (a cell was re-admitted, number of faulty cells)."""
+    n_cells = current.shape[0]
+    available, excluded, readmitted = flags[_AVAILABLE], flags[_EXCLUDED], flags[_READMITTED]
+    lit, dark, usable, used, fit_lit, faulty = (flags[_LIT], flags[_DARK], flags[_USABLE], flags[_USED],
+                                                flags[_FIT_LIT], flags[_FAULTY])
+    for i in range(n_cells):
+        used[i] = lit[i] or dark[i]
+        fit_lit[i] = lit[i]
+        usable[i] = available[i] and excluded[i]
+    _classify(normals, vec[_S], usable, st.cos_lit_min, st.cos_dark_max, lit, dark)
+    again = False
+    n_faulty = 0
+    for i in range(n_cells):
+        faulty[i] = False
+        if lit[i] or dark[i]:
+            residual, leverage = _residual_leverage(current, normals, sky_factor, lit, i, vec, mat)
+            consistent = abs(residual) <= st.kappa * sigma * np.sqrt(1.0 + leverage)
+            if consistent and not readmitted[i]:
+                excluded[i] = False
+                readmitted[i] = True
+                again = True
+            faulty[i] = not consistent
+            n_faulty += faulty[i]
+    return again, n_faulty
+
+
+@njit(cache=True)
 def _refine(current, normals, sky_factor, st, k, flags, vec, mat):
     """Steps 2 and 3 of :func:`_solve_epoch` from direction ``vec[_S]``, scale ``k`` and ``flags[_EXCLUDED]``.
 
@@ -245,10 +314,9 @@ def _refine(current, normals, sky_factor, st, k, flags, vec, mat):
     Returns (status, k [A], current sigma [A], residual sum of squares [A^2], number of faulty cells).
     """
     n_cells = current.shape[0]
-    available, excluded, readmitted = flags[_AVAILABLE], flags[_EXCLUDED], flags[_READMITTED]
-    lit, dark, usable, used, fit_lit, faulty = (flags[_LIT], flags[_DARK], flags[_USABLE], flags[_USED],
-                                                flags[_FIT_LIT], flags[_FAULTY])
-    s, s_new, solution, m_inv = vec[_S], vec[_S_NEW], vec[_SOLUTION], mat[_INVERSE]
+    available, excluded = flags[_AVAILABLE], flags[_EXCLUDED]
+    lit, dark, usable = flags[_LIT], flags[_DARK], flags[_USABLE]
+    s, s_new, solution = vec[_S], vec[_S_NEW], vec[_SOLUTION]
     use_sky = np.isfinite(st.sky_prior_sigma_a)
     use_k = np.isfinite(st.k_prior_sigma_a)
     for _ in range(st.max_iterations):
@@ -276,37 +344,8 @@ def _refine(current, normals, sky_factor, st, k, flags, vec, mat):
             if not use_k or moved < 1e-12:
                 break
             s[:] = s_new
-        # Studentised residuals w = r / (sigma sqrt(1 - h)) of the cells (and sqrt(weight) r / (sigma sqrt(1 - h))
-        # of the prior rows); the largest is the best leave-one-out candidate.
-        rss = 0.0
-        worst = -1
-        worst_w = st.kappa
-        for i in range(n_cells):
-            if lit[i] or dark[i]:
-                residual, leverage = _residual_leverage(current, normals, sky_factor, lit, i, vec, mat)
-                rss += residual * residual
-                if leverage < 1.0 - 1e-9 and abs(residual) > worst_w * sigma * np.sqrt(1.0 - leverage):
-                    worst_w = abs(residual) / (sigma * np.sqrt(1.0 - leverage))
-                    worst = i
-        if use_sky:
-            residual = st.sky_prior_a - solution[3]
-            leverage = sky_weight * m_inv[3, 3]
-            w = abs(residual) * np.sqrt(sky_weight) / (sigma * np.sqrt(max(1.0 - leverage, 1e-12)))
-            if w > worst_w:
-                worst_w = w
-                worst = n_cells
-        if use_k:
-            residual = st.k_prior_a
-            leverage = 0.0
-            for p in range(3):
-                residual -= s[p] * solution[p]
-                for q in range(3):
-                    leverage += s[p] * m_inv[p, q] * s[q]
-            leverage *= k_weight
-            w = abs(residual) * np.sqrt(k_weight) / (sigma * np.sqrt(max(1.0 - leverage, 1e-12)))
-            if w > worst_w:
-                worst_w = w
-                worst = n_cells + 1
+        worst, rss = _worst_row(current, normals, sky_factor, st, lit, dark, sigma, use_sky, sky_weight, use_k,
+                                k_weight, vec, mat)
         if worst == n_cells:  # the sky light differs from the log's: no prior for this epoch
             use_sky = False
             continue
@@ -325,25 +364,7 @@ def _refine(current, normals, sky_factor, st, k, flags, vec, mat):
         s[:] = s_new
         if not _classification_holds(normals, s, usable, lit, dark, st.cos_lit_min, st.cos_dark_max):
             continue
-        # Fixed point: re-admit excluded cells the fit predicts (once each), else finish.
-        for i in range(n_cells):
-            used[i] = lit[i] or dark[i]
-            fit_lit[i] = lit[i]
-            usable[i] = available[i] and excluded[i]
-        _classify(normals, s, usable, st.cos_lit_min, st.cos_dark_max, lit, dark)
-        again = False
-        n_faulty = 0
-        for i in range(n_cells):
-            faulty[i] = False
-            if lit[i] or dark[i]:
-                residual, leverage = _residual_leverage(current, normals, sky_factor, lit, i, vec, mat)
-                consistent = abs(residual) <= st.kappa * sigma * np.sqrt(1.0 + leverage)
-                if consistent and not readmitted[i]:
-                    excluded[i] = False
-                    readmitted[i] = True
-                    again = True
-                faulty[i] = not consistent
-                n_faulty += faulty[i]
+        again, n_faulty = _readmit(current, normals, sky_factor, st, sigma, flags, vec, mat)
         if again:
             continue
         return STATUS_OK, k, sigma, rss, n_faulty
@@ -399,6 +420,34 @@ def _no_solution(status):
 
 
 @njit(cache=True)
+def _screen(current, normals, sky_factor, st, k, flags, vec, mat):
+    """Step 1 of :func:`_solve_epoch`: a joint fit of the core cells (``flags[_CORE]``) from direction ``vec[_S]``
+    and scale ``k`` [A]; every other cell whose current that fit does not predict (prediction test at ``kappa``)
+    starts excluded (``flags[_EXCLUDED]``). Returns the scale [A] of the core fit (``k`` when there is none)."""
+    n_cells = current.shape[0]
+    available, core, excluded, lit, dark = flags[_AVAILABLE], flags[_CORE], flags[_EXCLUDED], flags[_LIT], flags[_DARK]
+    s, solution = vec[_S], vec[_SOLUTION]
+    use_sky = np.isfinite(st.sky_prior_sigma_a)
+    n_lit, n_dark = _classify(normals, s, core, st.cos_lit_min, st.cos_dark_max, lit, dark)
+    if n_lit >= 3 and (n_lit + n_dark >= 4 or use_sky):
+        sigma = np.sqrt(st.noise_a ** 2 + (st.model_error_rel * k) ** 2)
+        _, ok = _joint_fit(current, normals, sky_factor, lit, dark, (sigma / st.sky_prior_sigma_a) ** 2,
+                           st.sky_prior_a, (sigma / st.k_prior_sigma_a) ** 2, st.k_prior_a, vec, mat)
+        k_core = np.sqrt(solution[0] ** 2 + solution[1] ** 2 + solution[2] ** 2)
+        if ok and k_core > 0.0:
+            k = k_core
+            for p in range(3):
+                s[p] = solution[p] / k
+            sigma = np.sqrt(st.noise_a ** 2 + (st.model_error_rel * k) ** 2)
+            _classify(normals, s, available, st.cos_lit_min, st.cos_dark_max, lit, dark)
+            for i in range(n_cells):
+                if (lit[i] or dark[i]) and not core[i]:
+                    residual, leverage = _residual_leverage(current, normals, sky_factor, lit, i, vec, mat)
+                    excluded[i] = abs(residual) > st.kappa * sigma * np.sqrt(1.0 + leverage)
+    return k
+
+
+@njit(cache=True)
 def _solve_epoch(current, normals, sky_factor, st, s_out, cells_used, faulty, flags, vec, mat, suspects,
                  suspicion):
     """Adaptive LS for one epoch; writes ``s_out`` (3,), ``cells_used`` (7,), ``faulty`` (7,).
@@ -422,8 +471,8 @@ def _solve_epoch(current, normals, sky_factor, st, s_out, cells_used, faulty, fl
     of sky and k per unit current sigma [-]).
     """
     n_cells = current.shape[0]
-    available, core, excluded, readmitted = flags[_AVAILABLE], flags[_CORE], flags[_EXCLUDED], flags[_READMITTED]
-    lit, dark, used, fault = flags[_LIT], flags[_DARK], flags[_USED], flags[_FAULTY]
+    available, excluded, readmitted = flags[_AVAILABLE], flags[_EXCLUDED], flags[_READMITTED]
+    used, fault = flags[_USED], flags[_FAULTY]
     s, solution, m_inv = vec[_S], vec[_SOLUTION], mat[_INVERSE]
     n_available = 0
     for i in range(n_cells):
@@ -439,24 +488,7 @@ def _solve_epoch(current, normals, sky_factor, st, s_out, cells_used, faulty, fl
     k, ok = _initial_direction(current, normals, sky_factor, st.n_initial, flags, vec, mat)
     if not ok:
         return _no_solution(STATUS_ILL_CONDITIONED)
-    # 1. Screen the non-core cells against the core's fit.
-    use_sky = np.isfinite(st.sky_prior_sigma_a)
-    n_lit, n_dark = _classify(normals, s, core, st.cos_lit_min, st.cos_dark_max, lit, dark)
-    if n_lit >= 3 and (n_lit + n_dark >= 4 or use_sky):
-        sigma = np.sqrt(st.noise_a ** 2 + (st.model_error_rel * k) ** 2)
-        _, ok = _joint_fit(current, normals, sky_factor, lit, dark, (sigma / st.sky_prior_sigma_a) ** 2,
-                           st.sky_prior_a, (sigma / st.k_prior_sigma_a) ** 2, st.k_prior_a, vec, mat)
-        k_core = np.sqrt(solution[0] ** 2 + solution[1] ** 2 + solution[2] ** 2)
-        if ok and k_core > 0.0:
-            k = k_core
-            for p in range(3):
-                s[p] = solution[p] / k
-            sigma = np.sqrt(st.noise_a ** 2 + (st.model_error_rel * k) ** 2)
-            _classify(normals, s, available, st.cos_lit_min, st.cos_dark_max, lit, dark)
-            for i in range(n_cells):
-                if (lit[i] or dark[i]) and not core[i]:
-                    residual, leverage = _residual_leverage(current, normals, sky_factor, lit, i, vec, mat)
-                    excluded[i] = abs(residual) > st.kappa * sigma * np.sqrt(1.0 + leverage)
+    k = _screen(current, normals, sky_factor, st, k, flags, vec, mat)
     start_s, start_excluded = vec[_START_S], flags[_START_EXCLUDED]
     start_s[:] = s
     start_excluded[:] = excluded

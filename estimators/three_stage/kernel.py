@@ -16,10 +16,12 @@ docs/estimators.md, 'Scheduling rule'), built once per run by :func:`estimators.
 * ``PERIODIC``: the stage-1 accelerometer update at ``accel_update_rate_hz``, with the specific force and the rates
   averaged over the update interval.
 
-The stage steps are in :mod:`estimators.three_stage.stages`. Filter quantities per stage (kernel arrays): ``x``
-state, ``P`` covariance (prior before, posterior after each scalar update), innovation ``nu``, its variance ``S``,
-``NIS = nu^2 / S``. Every scalar update is a diagnostics row; the innovations of whitened vector updates
-(magnetometer, sun, wind) are in whitened units (R = 1).
+The loop only dispatches: the decisions when to fuse, start, reset or re-initialise are the per-sensor control
+functions of :mod:`estimators.three_stage.control`, the fusion (stage steps) is in
+:mod:`estimators.three_stage.stages` (docs/three_stage.md, 'Control and fusion'). Filter quantities per stage
+(kernel arrays): ``x`` state, ``P`` covariance (prior before, posterior after each scalar update), innovation
+``nu``, its variance ``S``, ``NIS = nu^2 / S``. Every scalar update is a diagnostics row; the innovations of
+whitened vector updates (magnetometer, sun, wind) are in whitened units (R = 1).
 
 There is no separate NumPy twin: run with ``NUMBA_DISABLE_JIT=1`` (a fresh process), the same code is the plain
 Python/NumPy reference the twin test compares the compiled kernel with.
@@ -34,12 +36,30 @@ import numpy as np
 from numba import njit
 
 from estimators.core import linalg, reacquisition, recorder, rotations
-from estimators.core.recorder import C_GPS_RESETS, C_OUTPUTS, N_SHARED_COUNTERS
+from estimators.core.recorder import C_OUTPUTS, Recorder
 from estimators.core.schedule import COVARIANCE, PERIODIC, PROPAGATE
 from estimators.inputs.records import AIRSPEED, BARO, GPS_POS, GPS_VEL, MAG, OUTPUT, SUN
+from estimators.three_stage.control import (
+    GPS_FUSE,
+    GPS_RESET,
+    GPS_START,
+    STALE_AFTER_S,
+    accel_control,
+    airspeed_input,
+    attitude_update_allowed,
+    gps_position_control,
+    gps_velocity_control,
+    gps_velocity_input,
+    heading_control,
+    height_input,
+    held_inputs,
+    restart_heading,
+    stage3_start,
+    wind_pseudo_due,
+)
 from estimators.three_stage.model import I_DEVIATION, corrected_heading
 from estimators.three_stage.stages import (
-    accumulate,
+    accumulate_intervals,
     check_health,
     flush_stage1,
     flush_stage3,
@@ -59,15 +79,6 @@ OUT_COLUMNS = ("time_s", "roll", "pitch", "yaw", "pn", "pe", "pd", "vn", "ve", "
 (O_TIME, O_ROLL, O_PITCH, O_YAW, O_PN, O_PE, O_PD, O_VN, O_VE, O_VD, O_WN, O_WE, O_ROLL_STD, O_PITCH_STD, O_YAW_STD,
  O_PN_STD, O_PE_STD, O_VN_STD, O_VE_STD, O_WN_STD, O_WE_STD) = range(len(OUT_COLUMNS))
 
-# kernel counters: the shared slots of estimators.core.recorder (C_DIAG .. C_OUTPUTS), then this filter's
-C_PITCH_GUARD = N_SHARED_COUNTERS  # attitude updates skipped at the Euler singularity
-C_HEADING_RESETS = N_SHARED_COUNTERS + 1  # stage-2 heading re-acquisitions
-N_COUNTERS = N_SHARED_COUNTERS + 2
-
-#: Attitude updates are skipped beyond this pitch (Euler singularity) [rad].
-PITCH_GUARD_RAD = math.radians(85.0)
-#: An airspeed or GPS value older than this is stale: no centripetal term, no wind pseudo, no GPS acceleration [s].
-STALE_AFTER_S = 1.0
 #: Variance floor of the covariance repair.
 MIN_VARIANCE = 1e-12
 
@@ -153,6 +164,36 @@ class MeasurementWork(NamedTuple):
     no_accel: np.ndarray  # (3,) zero NED acceleration (gravity-only stage-1 model)
 
 
+class StageStates(NamedTuple):
+    """The states and covariances of the three stages (the kernel's in/out arrays, bundled for the loop's
+    helpers)."""
+
+    x1: np.ndarray  # (2,) roll, pitch [rad]
+    P1: np.ndarray  # (2, 2)
+    x2: np.ndarray  # (1,) heading [rad]
+    P2: np.ndarray  # (1, 1)
+    x3: np.ndarray  # (n3,) navigation states (estimators.three_stage.model)
+    P3: np.ndarray  # (n3, n3)
+
+
+class HealthyStates(NamedTuple):
+    """The last healthy stage states (divergence check), the states a reset returns to."""
+
+    x1: np.ndarray  # (2,)
+    x2: np.ndarray  # (1,)
+    x3: np.ndarray  # (n3,)
+
+
+class GpsWork(NamedTuple):
+    """The GPS data the three-stage control holds between events."""
+
+    vel_ned: np.ndarray  # (3,) last GPS velocity NED [m/s]
+    acc_ned: np.ndarray  # (3,) low-passed NED acceleration from the GPS velocity [m/s^2]
+    pos_ne: np.ndarray  # (2,) last GPS north, east [m] (start of stage 3)
+    pos_var: np.ndarray  # (2,) their variances [m^2]
+    monitor: np.ndarray  # GPS re-acquisition monitor (estimators.core.reacquisition), armed when stage 3 starts
+
+
 @njit(cache=True)
 def _stage_work(n, n_inputs, n_u):
     """Work arrays of a stage with ``n`` states, ``n_inputs`` noisy inputs and ``n_u`` model inputs."""
@@ -168,12 +209,6 @@ def _measurement_work():
     return MeasurementWork(np.zeros(3), np.zeros((3, 3)), np.zeros((3, 2)), np.zeros(3), np.zeros((3, 2)),
                            np.zeros((3, 1)), np.zeros((3, 3)), np.zeros((3, 3)), np.zeros((3, 3)), np.zeros((3, 1)),
                            np.zeros(8), np.zeros(3))
-
-
-@njit(cache=True)
-def _lowpass(value, sample, dt, tau):
-    """One step of a first-order low-pass with time constant ``tau`` over ``dt`` (exact for a held sample)."""
-    return value + (1.0 - math.exp(-dt / tau)) * (sample - value)
 
 
 @njit(cache=True, inline="always")
@@ -216,6 +251,20 @@ def _output_row(t, x1, P1, x2, P2, x3, P3, stage3_on, fixed_wing_nav, height, ve
         row[O_VE_STD] = math.sqrt(P3[3, 3])
 
 
+class Intervals(NamedTuple):
+    """The IMU row being integrated and the input sums of the open intervals: the accelerometer update interval
+    and the deferred stage-1 and stage-3 covariance propagations, with the states at their start."""
+
+    rates: np.ndarray  # (3,) bias-corrected gyro of the IMU row [rad/s]
+    f_b: np.ndarray  # (3,) specific force of the IMU row [m/s^2]
+    acc_meas: np.ndarray  # (8,) sums (dt, omega dt, f dt, V_a dt) of the accelerometer update interval
+    acc1: np.ndarray  # (8,) the same of the stage-1 covariance interval
+    acc3: np.ndarray  # (8,) the same of the stage-3 covariance interval
+    x1_start: np.ndarray  # (2,) stage-1 state at the start of its covariance interval
+    x3_start: np.ndarray  # (n3,) stage-3 state at the start of its covariance interval
+    attitude_start: np.ndarray  # (3,) roll, pitch, stage-2 heading [rad] at the same time
+
+
 @njit(cache=True, nogil=True)  # the replays of noise identification run in threads
 def run_kernel(op, op_value, op_index, imu_t, imu_gyro, imu_accel, ev_kind, ev_val, ev_var, prm, x1, P1, x2, P2,
                x3, P3, out, diag_f, diag_i, counters):
@@ -241,30 +290,30 @@ def run_kernel(op, op_value, op_index, imu_t, imu_gyro, imu_accel, ev_kind, ev_v
         Diagnostics recorder arrays (:mod:`estimators.core.recorder`).
     counters : int64 (N_COUNTERS,)
     """
-    n3 = x3.shape[0]
-    w1, w2, w3 = _stage_work(2, 3, 3), _stage_work(1, 3, 3), _stage_work(n3, 2, 6)
-    mw = _measurement_work()
-    x1_safe, x2_safe, x3_safe = x1.copy(), x2.copy(), x3.copy()
-    row = np.empty(out.shape[1])
-    rates, f_b = np.empty(3), np.empty(3)  # bias-corrected gyro and specific force of the IMU row
-    variances = np.empty(ev_var.shape[1])  # event variances raised to the model-error floor
-    stage3_on = False
-    # input sums (dt, omega dt, f dt, V_a dt) of the accelerometer update interval and of the deferred stage-1 and
-    # stage-3 covariance propagations, with the states and attitude at the start of those intervals
-    acc_meas, acc1, acc3 = np.zeros(8), np.zeros(8), np.zeros(8)
-    x1_start, x3_start, attitude_start = x1.copy(), x3.copy(), np.zeros(3)
-    # low-passed inputs and their sample times
-    va, va_t = 0.0, -math.inf
-    height, height_t = prm.initial_height_m, -math.inf
-    vertical_speed = 0.0 if math.isfinite(height) else math.nan
-    gps_vel, gps_vel_t = np.zeros(3), -math.inf
-    gps_acc = np.zeros(3)
-    gps_pos, gps_pos_var = np.zeros(2), np.zeros(2)
-    gps_pos_t = -math.inf
-    gps_mon = reacquisition.gps_monitor()  # re-acquisition rule, armed when stage 3 starts
+    iv = Intervals(np.empty(3), np.empty(3), np.zeros(8), np.zeros(8), np.zeros(8), x1.copy(), x3.copy(),
+                   np.zeros(3))
+    work = (_stage_work(2, 3, 3), _stage_work(1, 3, 3), _stage_work(x3.shape[0], 2, 6), _measurement_work())
+    gps = GpsWork(np.zeros(3), np.zeros(3), np.zeros(2), np.zeros(2), reacquisition.gps_monitor())
+    _loop(op, op_value, op_index, imu_t, imu_gyro, imu_accel, ev_kind, ev_val, ev_var, prm,
+          StageStates(x1, P1, x2, P2, x3, P3), HealthyStates(x1.copy(), x2.copy(), x3.copy()), iv, gps, work, out,
+          Recorder(diag_f, diag_i, counters))
+
+
+@njit(cache=True, inline="always")  # compiled once, in run_kernel (a callee linked in is optimised again)
+def _loop(op, op_value, op_index, imu_t, imu_gyro, imu_accel, ev_kind, ev_val, ev_var, prm, st, safe, iv, gps, work,
+          out, rec):
+    """The loop of :func:`run_kernel` over the schedule, with its arrays bundled (called once: the bundles are
+    unpacked here, so that each operation passes its steps loose arrays, see :mod:`estimators.three_stage.control`)."""
+    x1, P1, x2, P2, x3, P3 = st
+    rates, f_b, acc_meas, acc1, acc3, x1_start, x3_start, attitude_start = iv
+    (w1, w2, w3, mw), (diag_f, diag_i, counters), (x1_safe, x2_safe, x3_safe) = work, rec, safe
+    gps_vel, gps_acc, gps_mon = gps.vel_ned, gps.acc_ned, gps.monitor
+    held = held_inputs(prm.initial_height_m)
+    row, variances = np.empty(out.shape[1]), np.empty(ev_var.shape[1])  # variances: raised to the model floor
+    stage3_on, n_out = False, 0
+    reject_s, outage_s = prm.gps_reset_after_s, prm.gps_outage_reset_s  # T_rej, T_out of the re-acquisition rule
     heading_rejected_since = math.inf  # start of the current streak of gated-out heading vectors
-    P2_reset = P2[0, 0]  # the alignment's heading variance, given to a re-acquired heading
-    n_out = 0
+    heading_var_reset = P2[0, 0]  # the alignment's heading variance, given to a re-acquired heading
     t = imu_t[0] if imu_t.shape[0] > 0 else 0.0
     for s in range(op.shape[0]):
         code = op[s]
@@ -274,48 +323,35 @@ def run_kernel(op, op_value, op_index, imu_t, imu_gyro, imu_accel, ev_kind, ev_v
             for i in range(3):
                 rates[i] = imu_gyro[k, i] - prm.gyro_bias_rad_s[i]
                 f_b[i] = imu_accel[k, i]
-            va_in = va if t - va_t < STALE_AFTER_S else 0.0
+            va = held.va_m_s if t - held.va_t < STALE_AFTER_S else 0.0  # stale: no centripetal term
             if acc1[0] == 0.0:
                 x1_start[:] = x1
             if stage3_on and acc3[0] == 0.0:
                 x3_start[:] = x3
                 attitude_start[0], attitude_start[1], attitude_start[2] = x1[0], x1[1], x2[0]
-            propagate_states(dt, rates, f_b, va_in, prm, x1, x2, P2, x3, stage3_on)
-            accumulate(acc_meas, dt, rates, f_b, va_in)
-            accumulate(acc1, dt, rates, f_b, va_in)
-            if stage3_on:
-                accumulate(acc3, dt, rates, f_b, va_in)
+            propagate_states(dt, rates, f_b, va, prm, x1, x2, P2, x3, stage3_on)
+            accumulate_intervals(acc_meas, acc1, acc3, stage3_on, dt, rates, f_b, va)
             # a step ends at its row's time, or at the time of the event that follows it (the EVENT sets t)
             t = imu_t[k]
             continue
         t = op_value[s]
         if code == COVARIANCE:
-            flush_stage1(acc1, x1_start, P1, prm, w1.A, w1.G, w1.F, w1.Q, w1.W, w1.u,
-                         w1.values, w1.cols, w1.counts, w1.columns)
+            flush_stage1(acc1, x1_start, P1, prm, w1.A, w1.G, w1.F, w1.Q, w1.W, w1.u, w1.values, w1.cols, w1.counts,
+                         w1.columns)
             if stage3_on:
                 flush_stage3(acc3, x3_start, attitude_start, P1, P2, P3, prm, w3.A, w3.G, w3.F, w3.Q, w3.W, w3.u,
                              w3.input_var, w3.values, w3.cols, w3.counts, w3.columns)
             continue
         if code == PERIODIC:
-            # stage 1 at the accelerometer update rate, with the inputs averaged over the interval
-            if acc_meas[0] > 0.0:
-                if abs(x1[1]) > PITCH_GUARD_RAD:
-                    counters[C_PITCH_GUARD] += 1
-                else:
-                    use_gps_acc = prm.gps_acceleration and t - gps_vel_t < STALE_AFTER_S
-                    accel_n = gps_acc if use_gps_acc else mw.no_accel
-                    mean = mw.mean
-                    for i in range(8):
-                        mean[i] = acc_meas[i] / acc_meas[0]
-                    stage1_update(t, mean[4:7], mean[1:4], mean[7], accel_n, prm, x1, P1, x2, w1, mw, diag_f,
-                                  diag_i, counters)
-                    repair(P1, prm.max_var1, w1, counters)
-                acc_meas[:] = 0.0
+            mean = mw.mean
+            fuse, use_gps_acc = accel_control(t, prm.gps_acceleration, held, acc_meas, x1[1], mean, counters)
+            if fuse:
+                stage1_update(t, mean[4:7], mean[1:4], mean[7], gps_acc if use_gps_acc else mw.no_accel, prm, x1,
+                              P1, x2, w1, mw, diag_f, diag_i, counters)
+                repair(P1, prm.max_var1, w1, counters)
             continue
-        # EVENT
-        ie = op_index[s]
-        kind = ev_kind[ie]
-        values = ev_val[ie]
+        ie = op_index[s]  # EVENT
+        kind, values = ev_kind[ie], ev_val[ie]
         for i in range(variances.shape[0]):
             variances[i] = np.maximum(ev_var[ie, i], prm.variance_floor[kind])
         if kind == OUTPUT:
@@ -324,96 +360,41 @@ def run_kernel(op, op_value, op_index, imu_t, imu_gyro, imu_accel, ev_kind, ev_v
             check_health(x2, P2, x2_safe, prm.p2_0, counters)
             if stage3_on:
                 check_health(x3, P3, x3_safe, prm.p3_0, counters)
-            _output_row(t, x1, P1, x2, P2, x3, P3, stage3_on, prm.fixed_wing_nav, height, vertical_speed, row)
+            _output_row(t, x1, P1, x2, P2, x3, P3, stage3_on, prm.fixed_wing_nav, held.height_m,
+                        held.vertical_speed_m_s, row)
             recorder.record_output(out, n_out, row)
             n_out += 1
         elif kind == AIRSPEED:
-            va = values[0] if t - va_t > STALE_AFTER_S else _lowpass(va, values[0], t - va_t, prm.airspeed_lpf_s)
-            va_t = t
+            held = airspeed_input(t, values[0], prm.airspeed_lpf_s, held)
         elif kind == BARO or (kind == GPS_POS and prm.height_from_gps):
-            sample = values[0] if kind == BARO else -values[2]
-            if height_t == -math.inf:  # first sample
-                height, vertical_speed = sample, 0.0
-            else:
-                rate = (sample - height) / prm.baro_lpf_s  # rate of the first-order filter
-                height = _lowpass(height, sample, t - height_t, prm.baro_lpf_s)
-                vertical_speed = _lowpass(vertical_speed, rate, t - height_t, prm.vertical_speed_lpf_s)
-            height_t = t
+            held = height_input(t, values[0] if kind == BARO else -values[2], prm.baro_lpf_s,
+                                prm.vertical_speed_lpf_s, held)
         if kind in (MAG, SUN):
-            if abs(x1[1]) > PITCH_GUARD_RAD:
-                counters[C_PITCH_GUARD] += 1
-            else:
+            if attitude_update_allowed(x1[1], counters):
                 gated, heading = stage2_update(t, kind, values, variances, prm, x1, P1, x2, P2, w2, mw, diag_f,
                                                diag_i, counters)
-                if gated:
-                    heading_rejected_since = math.inf
-                elif heading_rejected_since == math.inf:
-                    heading_rejected_since = t
-                elif t - heading_rejected_since >= prm.gps_reset_after_s and math.isfinite(heading):
-                    # heading re-acquisition, the rule of the GPS (docs/estimators.md, 'GPS re-acquisition'):
-                    # every vector rejected for T_rej means the heading, not the sensor, is wrong; restart from
-                    # the measured heading
-                    x2[0] = heading
-                    P2[0, 0] = P2_reset
-                    heading_rejected_since = math.inf
-                    counters[C_HEADING_RESETS] += 1
+                heading_rejected_since, restart = heading_control(t, gated, heading, heading_rejected_since, reject_s)
+                if restart:
+                    restart_heading(heading, heading_var_reset, x2, P2, counters)
                 repair(P2, prm.max_var2, w2, counters)
         elif kind == GPS_POS:
-            gps_pos_t = t
-            gps_pos[:] = values[:2]
-            gps_pos_var[:] = variances[:2]
-            reset, counted = False, False
-            if stage3_on:
-                reset, counted = reacquisition.gps_reset_due(gps_mon, True, t, prm.gps_reset_after_s,
-                                                             prm.gps_outage_reset_s)
-            if reset:
-                # re-acquisition: position (and velocity, at its event) to GPS, variances to R, cross-covariances
-                # zeroed (docs/estimators.md, 'GPS re-acquisition')
-                for i in range(2):
-                    x3[i] = values[i]
-                    for j in range(n3):
-                        P3[i, j] = 0.0
-                        P3[j, i] = 0.0
-                    P3[i, i] = variances[i]
-                if counted:
-                    counters[C_GPS_RESETS] += 1
-            elif stage3_on:
-                if prm.fixed_wing_nav and t - va_t < STALE_AFTER_S:
-                    stage3_fw_wind(t, va, gps_vel[2], prm, x2, P2, x3, P3, w3, mw, diag_f, diag_i, counters)
+            fuse, held = gps_position_control(t, values, variances, stage3_on, reject_s, outage_s, held, gps, x3, P3,
+                                              counters)
+            if fuse:
+                if wind_pseudo_due(prm.fixed_wing_nav, t, held):
+                    stage3_fw_wind(t, held.va_m_s, gps_vel[2], prm, x2, P2, x3, P3, w3, mw, diag_f, diag_i, counters)
                 stage3_gps_position(t, values, variances, prm, x3, P3, w3, gps_mon, diag_f, diag_i, counters)
                 repair(P3, prm.max_var3, w3, counters)
         elif kind == GPS_VEL:
-            dt_gps = t - gps_vel_t
-            if 0.0 < dt_gps < STALE_AFTER_S:
-                for i in range(3):
-                    gps_acc[i] = _lowpass(gps_acc[i], (values[i] - gps_vel[i]) / dt_gps, dt_gps,
-                                          prm.gps_acceleration_lpf_s)
-            else:
-                gps_acc[:] = 0.0
-            gps_vel[:] = values[:3]
-            gps_vel_t = t
-            if not stage3_on:
-                fast = math.hypot(values[0], values[1]) > prm.min_ground_speed_m_s
-                if gps_pos_t == t and (fast or not prm.fixed_wing_nav):
-                    # start of stage 3 at this GPS epoch: position (from its GPS_POS event) and velocity
-                    x3[:] = 0.0
-                    P3[:, :] = prm.p3_0
-                    for i in range(2):
-                        x3[i] = gps_pos[i]
-                        P3[i, i] = max(P3[i, i], gps_pos_var[i])
-                    stage3_init_velocity(values, variances, prm, x3, P3)
-                    x3_safe[:] = x3
-                    acc3[:] = 0.0
-                    stage3_on = True
-                    reacquisition.gps_acquired(gps_mon, t)
-            else:
-                reset, counted = reacquisition.gps_reset_due(gps_mon, False, t, prm.gps_reset_after_s,
-                                                             prm.gps_outage_reset_s)
-                if reset:
-                    stage3_init_velocity(values, variances, prm, x3, P3)
-                    if counted:
-                        counters[C_GPS_RESETS] += 1
-                else:
-                    stage3_gps_velocity(t, values, variances, prm, x3, P3, w3, gps_mon, diag_f, diag_i, counters)
-                    repair(P3, prm.max_var3, w3, counters)
+            held = gps_velocity_input(t, values, prm.gps_acceleration_lpf_s, held, gps_vel, gps_acc)
+            action = gps_velocity_control(t, math.hypot(values[0], values[1]), stage3_on, prm.min_ground_speed_m_s,
+                                          prm.fixed_wing_nav, reject_s, outage_s, held, gps_mon, counters)
+            if action == GPS_START:
+                stage3_start(values, variances, prm, x3, P3, gps, x3_safe, acc3)
+                stage3_on = True
+            elif action == GPS_RESET:
+                stage3_init_velocity(values, variances, prm, x3, P3)
+            elif action == GPS_FUSE:
+                stage3_gps_velocity(t, values, variances, prm, x3, P3, w3, gps_mon, diag_f, diag_i, counters)
+                repair(P3, prm.max_var3, w3, counters)
     counters[C_OUTPUTS] = n_out

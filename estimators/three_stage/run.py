@@ -68,10 +68,8 @@ from estimators.core.schedule import build_schedule
 from estimators.core.state_table import StateSpec, initial_covariance, process_noise_psd
 from estimators.inputs import records
 from estimators.inputs.records import GPS_POS, GPS_VEL, MAG, OUTPUT, SUN, ReplayInputs
+from estimators.three_stage.control import C_HEADING_RESETS, C_PITCH_GUARD, N_COUNTERS
 from estimators.three_stage.kernel import (
-    C_HEADING_RESETS,
-    C_PITCH_GUARD,
-    N_COUNTERS,
     O_PD,
     O_PE_STD,
     O_PITCH,

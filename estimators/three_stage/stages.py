@@ -137,6 +137,16 @@ def accumulate(acc, dt, rates, f_b, va):
     acc[7] += va * dt
 
 
+@njit(cache=True)
+def accumulate_intervals(acc_meas, acc1, acc3, stage3_on, dt, rates, f_b, va):
+    """:func:`accumulate` over the open intervals: the accelerometer update interval ``acc_meas``, the stage-1
+    covariance ``acc1`` and, once stage 3 runs, the stage-3 covariance ``acc3``."""
+    accumulate(acc_meas, dt, rates, f_b, va)
+    accumulate(acc1, dt, rates, f_b, va)
+    if stage3_on:
+        accumulate(acc3, dt, rates, f_b, va)
+
+
 @njit(cache=True, inline="always")
 def flush_stage1(acc, x1_start, P1, prm, A, G, F, Q, W, rates, values, cols, counts, columns):
     """Stage-1 covariance over the accumulated interval: F from the interval-start state and the mean rates,
