@@ -525,26 +525,33 @@ def quantity_figure(frames: Mapping[str, pd.DataFrame], rows: Sequence[tuple[str
 
 #: Quantile of |innovation| [-] the innovation axes show at least: the in-flight innovations, not a landing spike.
 INNOVATION_QUANTILE = 0.99
-#: The innovation axes show at least this many typical sqrt(S) [-] (the median one): the +-2 sqrt(S) envelope and
-#: every innovation of a consistent filter are in view.
-ENVELOPE_SIGMAS = 5.0
+#: The innovation axes show at least this many robust standard deviations of the innovations [-] (1.4826 x their
+#: median absolute deviation, which a short spike does not inflate): every sample of a Gaussian innovation is in
+#: view.
+INNOVATION_SIGMAS = 5.0
+#: Median absolute deviation -> standard deviation of a Gaussian [-].
+MAD_TO_SIGMA = 1.4826
 #: Margin of the innovation axes beyond the larger of the two [-].
 INNOVATION_HEADROOM = 1.2
 #: Name of the markers of the innovations beyond the axis, drawn at its edge.
 OFF_SCALE = "off-scale"
 
 
-def innovation_limit(innovation, innovation_var) -> float:
+def innovation_limit(innovation) -> float:
     """Half-range of an innovation axis [innovation unit]: :data:`INNOVATION_HEADROOM` times the larger of the
-    :data:`INNOVATION_QUANTILE` quantile of |innovation| and :data:`ENVELOPE_SIGMAS` median sqrt(S)
-    (``innovation_var``: S [unit^2]); NaN without a finite value."""
-    magnitude = np.abs(np.asarray(innovation, float))
-    sigma = np.sqrt(np.asarray(innovation_var, float))
-    magnitude, sigma = magnitude[np.isfinite(magnitude)], sigma[np.isfinite(sigma)]
-    candidates = [np.quantile(magnitude, INNOVATION_QUANTILE) if magnitude.size else np.nan,
-                  ENVELOPE_SIGMAS * np.median(sigma) if sigma.size else np.nan]
-    limit = INNOVATION_HEADROOM * np.nanmax(candidates) if np.isfinite(candidates).any() else np.nan
-    return float(limit) if limit > 0 else np.nan
+    :data:`INNOVATION_QUANTILE` quantile of |innovation| and :data:`INNOVATION_SIGMAS` robust standard deviations
+    of the innovations; NaN without a finite nonzero value.
+
+    Scaled to the innovations themselves, not to sqrt(S): a conservative filter's +-2 sqrt(S) envelope may then lie
+    beyond the axis, which shows that its innovations are smaller than it expects."""
+    values = np.asarray(innovation, float)
+    values = values[np.isfinite(values)]
+    if not values.size:
+        return np.nan
+    robust_sigma = MAD_TO_SIGMA * np.median(np.abs(values - np.median(values)))
+    limit = INNOVATION_HEADROOM * max(float(np.quantile(np.abs(values), INNOVATION_QUANTILE)),
+                                      INNOVATION_SIGMAS * robust_sigma)
+    return limit if limit > 0 else np.nan
 
 
 def _off_scale_markers(fig: go.Figure, row: int, time_s: np.ndarray, innovation: np.ndarray, limit: float,
@@ -620,7 +627,7 @@ def innovation_figure(diagnostics: pd.DataFrame, units: Mapping[str, str], *, ti
                            legendgroup="innovation", showlegend=first, **options), row=row, col=1)
         shown = part.iloc[window_slice(base.since_start(time_s), window)]
         innovation = shown["innovation"].to_numpy(float)
-        limits.append(innovation_limit(innovation, shown["innovation_var"]))
+        limits.append(innovation_limit(innovation))
         off_scale += _off_scale_markers(fig, row, shown["time_s"].to_numpy(float), innovation, limits[-1], base,
                                         max_points)
         total += int(np.isfinite(innovation).sum())
@@ -801,8 +808,7 @@ def overlay_innovation_figure(per_run: Mapping[str, pd.DataFrame], estimator: st
     limits = []
     for component in components:
         parts = [part.loc[part["component"].astype(str) == component] for part in shown.values()]
-        limits.append(innovation_limit(np.concatenate([part["innovation"].to_numpy(float) for part in parts]),
-                                       np.concatenate([part["innovation_var"].to_numpy(float) for part in parts])))
+        limits.append(innovation_limit(np.concatenate([part["innovation"].to_numpy(float) for part in parts])))
     off_scale = total = 0
     bounded: set[str] = set()
     for index, (run_name, diagnostics) in enumerate(per_run.items()):
