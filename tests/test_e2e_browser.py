@@ -404,6 +404,7 @@ def test_a_batch_output_directory_on_the_fleet_page_in_a_browser(page, batch_out
 #: Screenshots of the issue-34 checks (under test-artifacts/), for a human to look at.
 SHOTS_DIR = Path("issue34")
 OCTOCOPTER = "px4_1.14_octo_flight_61.ulg"
+GROUND_WALK = "arduplane_4.0.8_ground_walk.bin"
 MISSION = "paper.ulg"
 #: One chart (title starting with the argument) in detail: axis titles and ranges, annotations, and per trace its
 #: name, y axis, points, breaks (null / NaN y) and finite y extremes.
@@ -468,7 +469,8 @@ def _ensure_run(page, name: str) -> None:
 
 
 def test_a_log_switch_shows_the_whole_flight_in_a_browser(page, real_logs_dir):
-    """Issue 34 (a): after the 78.7-s octocopter the bundled 14-min mission is shown whole, not its first 78.7 s."""
+    """Issue 34 (a): after the 78.7-s octocopter the bundled 14-min mission is shown whole, not its first 78.7 s;
+    a partial range is named on the charts; the ArduPlane log after it is whole again."""
     _add_log(page, real_logs_dir / OCTOCOPTER)
     _open(page, "Overview")
     octocopter = _plot(page, "Altitude and flight phases", lambda plot: plot["xrange"] is not None)
@@ -487,6 +489,11 @@ def test_a_log_switch_shows_the_whole_flight_in_a_browser(page, real_logs_dir):
     altitude = _chart(page, "Altitude and flight phases", lambda chart: "showing" in chart["axes"]["xaxis"]["title"])
     assert re.search(r"showing 86\.\d-864\.0 s of 0-864 s", altitude["axes"]["xaxis"]["title"]), altitude["axes"]
     _screenshot(page, SHOTS_DIR / "a_overview_mission_part_named")
+    _add_log(page, real_logs_dir / GROUND_WALK)  # the 85-s ArduPlane log after the mission's range: whole too
+    _open(page, "Overview")
+    walk = _plot(page, "Altitude and flight phases", lambda plot: plot["xrange"][1] < 100.0)
+    assert walk["xrange"] == pytest.approx([0.0, 85.14], abs=0.02), walk["xrange"]
+    _screenshot(page, SHOTS_DIR / "a_overview_ground_walk_after_mission")
 
 
 def test_the_octocopter_yaw_is_readable_in_a_browser(page, real_logs_dir):

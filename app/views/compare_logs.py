@@ -1,6 +1,7 @@
 """Compare logs: the same estimator across several logs of the workspace, each with one of its stored runs:
 attitude, errors and wind overlaid over the time since each log's start, and the RMS table of every log with its
-difference to a baseline log."""
+difference to a baseline log, like for like only: a log against another reference than the baseline's (onboard
+estimate vs ground truth) gets no improved / regressed verdict, and a sentence says why (issue 34)."""
 
 import streamlit as st
 
