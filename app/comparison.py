@@ -12,7 +12,7 @@ from collections.abc import Mapping
 import numpy as np
 import pandas as pd
 
-from app.figures import TimeBase
+from app.figures import TimeBase, rows_with_data
 from calib.figures import chi2_quantile, mean_nis_band
 from estimators.evaluation import MIN_GROUND_SPEED_M_S, Evaluation, evaluate
 from estimators.evaluation import QUANTITIES as EVALUATED
@@ -50,6 +50,58 @@ def rms_table(evaluation: Evaluation) -> pd.DataFrame:
     Table 2 (NaN where an estimator or the reference lacks the quantity)."""
     table = evaluation.rms().rename(columns={column: label for column, (label, _) in QUANTITIES.items()})
     return table.rename_axis(None)
+
+
+#: What an RMS against each reference means, in a plain sentence (every RMS table says it).
+REFERENCE_SENTENCES = {
+    "truth": "Errors against the ground truth.",
+    "onboard": "Disagreement with the autopilot's onboard estimate (the log has no ground truth): lower means "
+               "closer to the autopilot, not necessarily better.",
+    None: "No reference: the log has neither ground truth nor an onboard estimate, so no errors.",
+}
+#: Names of the references in sentences.
+REFERENCE_NAMES = {"truth": "the ground truth", "onboard": "the onboard estimate", None: "no reference"}
+
+
+def reference_sentence(reference: str | None) -> str:
+    """What the RMS figures against ``reference`` (``"truth"``, ``"onboard"`` or None) mean."""
+    return REFERENCE_SENTENCES[reference]
+
+
+def has_airspeed(log: FlightLog) -> bool:
+    """Whether the log's vehicle has an airspeed: an airspeed stream with data, or a fixed-wing (whose airspeed
+    the filters estimate from the wind). A multicopter without a sensor has none: its |v - wind| with the
+    autopilot's zero wind is only the ground speed again."""
+    return log.has("airspeed") or log.meta.is_fixed_wing
+
+
+def without_absent_airspeed(frames: Mapping[str, pd.DataFrame], log: FlightLog) -> dict[str, pd.DataFrame]:
+    """``frames`` (source -> quantities or errors) for charts: the ``airspeed_m_s`` column dropped when the log
+    has no airspeed (:func:`has_airspeed`), so no chart draws a sensor the log does not have."""
+    if has_airspeed(log):
+        return dict(frames)
+    return {source: frame.drop(columns="airspeed_m_s", errors="ignore") for source, frame in frames.items()}
+
+
+#: Why an error chart's row may have no value (:func:`missing_rows_text`).
+MISSING_ERRORS_WHY = (f"Airspeed, course and wind errors count only in flight (reference ground speed > "
+                      f"{MIN_GROUND_SPEED_M_S:g} m/s); the other errors need the reference to have the quantity; "
+                      "no airspeed without an airspeed sensor on a multicopter.")
+#: Why a state chart's row may have no value.
+MISSING_STATES_WHY = ("Neither the estimators nor the references have it (no airspeed without an airspeed sensor "
+                      "on a multicopter).")
+#: Why the wind chart may have no value.
+MISSING_WIND_WHY = "No estimator of the run and no reference estimates the wind."
+
+
+def missing_rows_text(frames: Mapping[str, pd.DataFrame], rows, why: str) -> str | None:
+    """A sentence naming the chart ``rows`` (column, axis title) left out because no source has a value of them
+    (:func:`app.figures.rows_with_data`), followed by ``why``; None when every row is drawn."""
+    drawn = set(rows_with_data(frames, rows))
+    missing = [axis_title.split(" [")[0] for column, axis_title in rows if (column, axis_title) not in drawn]
+    if not missing:
+        return None
+    return f"Not drawn, no value in any source: {', '.join(missing)}. {why}".rstrip()
 
 
 def window_caption(evaluation: Evaluation, since_start_s: float) -> str:
@@ -122,8 +174,9 @@ def table_download(frame: pd.DataFrame, time_base: TimeBase, suffix: str) -> byt
 # ---------------------------------------------------------------------------------------------------- several runs
 #: A run whose RMS differs from the baseline's by less than this share [%] counts as unchanged.
 RMS_CHANGE_TOLERANCE_PCT = 1.0
-#: Verdicts of a run's RMS against the baseline's (lower is better).
-IMPROVED, REGRESSED, UNCHANGED = "improved", "regressed", "unchanged"
+#: Verdicts of a run's RMS against the baseline's (lower is better); :data:`OTHER_REFERENCE`: not compared, the
+#: run's errors are against another reference than the baseline's (truth vs onboard estimate).
+IMPROVED, REGRESSED, UNCHANGED, OTHER_REFERENCE = "improved", "regressed", "unchanged", "other reference"
 #: Columns of :func:`rms_comparison`.
 RMS_COMPARISON_COLUMNS = ("run", "estimator", "quantity", "RMS", "baseline RMS", "delta", "delta [%]", "change")
 
@@ -155,8 +208,15 @@ def change_verdict(delta_pct: float, tolerance_pct: float = RMS_CHANGE_TOLERANCE
     return IMPROVED if delta_pct < 0 else REGRESSED
 
 
+def like_for_like(reference: str | None, baseline_reference: str | None) -> bool:
+    """Whether RMS figures against ``reference`` compare with the baseline's against ``baseline_reference``:
+    only against the same reference (truth with truth, onboard with onboard)."""
+    return reference is not None and reference == baseline_reference
+
+
 def rms_comparison(rms_by_run: Mapping[str, pd.DataFrame], baseline: str,
-                   tolerance_pct: float = RMS_CHANGE_TOLERANCE_PCT) -> pd.DataFrame:
+                   tolerance_pct: float = RMS_CHANGE_TOLERANCE_PCT,
+                   references: Mapping[str, str | None] | None = None) -> pd.DataFrame:
     """Long table of the RMS errors of several runs against a baseline run.
 
     Parameters
@@ -167,6 +227,10 @@ def rms_comparison(rms_by_run: Mapping[str, pd.DataFrame], baseline: str,
         The run the others are compared with (one of ``rms_by_run``).
     tolerance_pct : float
         Relative change [%] below which a row is :data:`UNCHANGED`.
+    references : mapping of run name -> str or None, optional
+        Each run's reference (``"truth"`` / ``"onboard"``); a run whose reference is not the baseline's
+        (:func:`like_for_like`) is not compared: NaN baseline RMS and deltas, ``change`` :data:`OTHER_REFERENCE`.
+        Without it every run counts as against the baseline's reference (runs of one log).
 
     Returns
     -------
@@ -182,15 +246,16 @@ def rms_comparison(rms_by_run: Mapping[str, pd.DataFrame], baseline: str,
     reference = rms_by_run[baseline]
     rows = []
     for run, table in rms_by_run.items():
+        comparable = references is None or like_for_like(references.get(run), references.get(baseline))
         for estimator in table.index:
             for quantity in table.columns:
                 value = float(table.at[estimator, quantity])
                 base = (float(reference.at[estimator, quantity])
-                        if estimator in reference.index and quantity in reference.columns else np.nan)
+                        if comparable and estimator in reference.index and quantity in reference.columns else np.nan)
                 delta = value - base
                 percent = 100.0 * delta / base if np.isfinite(base) and base != 0.0 else np.nan
                 rows.append((run, str(estimator), str(quantity), value, base, delta, percent,
-                             change_verdict(percent, tolerance_pct)))
+                             change_verdict(percent, tolerance_pct) if comparable else OTHER_REFERENCE))
     return pd.DataFrame(rows, columns=list(RMS_COMPARISON_COLUMNS))
 
 
@@ -200,12 +265,27 @@ def runs_with(stored: pd.DataFrame, estimator: str) -> list[str]:
             if estimator in json.loads(text).get("estimators", [])]
 
 
-def log_rms_comparison(rms_by_log: Mapping[str, pd.DataFrame], estimator: str, baseline: str) -> pd.DataFrame:
+def log_rms_comparison(rms_by_log: Mapping[str, pd.DataFrame], estimator: str, baseline: str,
+                       references: Mapping[str, str | None]) -> pd.DataFrame:
     """:func:`rms_comparison` of one estimator across logs: ``rms_by_log`` maps a log's label (``"<log> · <run>"``)
-    to its run's :func:`rms_table`; the rows of the other estimators are left out, a log whose run lacks the
-    estimator (or has no reference) contributes no row."""
+    to its run's :func:`rms_table`, ``references`` to its reference; the rows of the other estimators are left
+    out, a log whose run lacks the estimator (or has no reference) contributes no row, and a log against another
+    reference than the baseline's is not compared (like for like only)."""
     return rms_comparison({label: table.loc[[estimator]] if estimator in table.index else table.iloc[:0]
-                           for label, table in rms_by_log.items()}, baseline)
+                           for label, table in rms_by_log.items()}, baseline, references=references)
+
+
+def other_reference_text(references: Mapping[str, str | None], baseline: str) -> str | None:
+    """The plain sentence under a cross-log RMS table naming the logs (label -> reference) whose reference
+    differs from the baseline's and why they get no improved/regressed verdict; None when all are alike."""
+    others = [label for label, reference in references.items()
+              if label != baseline and reference is not None and not like_for_like(reference, references[baseline])]
+    if not others:
+        return None
+    named = "; ".join(f"{label} against {REFERENCE_NAMES[references[label]]}" for label in others)
+    return (f"Not compared with the baseline, which is against {REFERENCE_NAMES[references[baseline]]}: {named}. "
+            "An RMS against the autopilot's onboard estimate and one against the ground truth measure different "
+            "things, so neither is better or worse than the other.")
 
 
 def nis_comparison(summaries: Mapping[str, pd.DataFrame]) -> pd.DataFrame:

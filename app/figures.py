@@ -4,8 +4,10 @@ Time axes read seconds since the log start (:class:`TimeBase`, the first IMU sam
 on hover. Every time figure takes the page's shared time ``window`` [s since start]: its series are sliced to the
 window at full resolution and only then downsampled with MinMaxLTTB (``tsdownsample``) to at most
 :data:`MAX_POINTS` points, so a 1-hour 250 Hz log draws as fast as a short one and a narrow window shows the single
-samples; the y axes autorange on the sliced data. Angles in [-180, 180) are broken at their wrap-arounds instead
-of drawing vertical lines. Every axis title carries its unit.
+samples; the y axes autorange on the sliced data. Angles are drawn on [-180, 180), or on [0, 360) when they sit
+near +-180 (:func:`angle_cut_deg`), and broken where they still wrap around instead of drawing vertical lines.
+Rows without data are left out (no empty panel). Innovations are scaled to the in-flight innovations
+(:func:`innovation_limit`), the samples beyond marked at the axis edge. Every axis title carries its unit.
 """
 
 from __future__ import annotations
@@ -181,12 +183,57 @@ def break_wraps(x: np.ndarray, y: np.ndarray, jump: float = WRAP_JUMP_DEG) -> tu
     return np.insert(x, at + 1, 0.5 * (x[at] + x[at + 1])), np.insert(y, at + 1, np.nan)
 
 
+#: Lower edges of the display ranges of an angle [deg]: [-180, 180) by default, [0, 360) for an angle that sits
+#: near +-180 deg (a heading near south), which would otherwise break into fragments at every sample crossing it.
+ANGLE_CUTS_DEG = (-180.0, 0.0)
+
+
+def display_angle(angle_deg, cut_deg: float) -> np.ndarray:
+    """Angles [deg] on the display range [``cut_deg``, ``cut_deg`` + 360)."""
+    return np.mod(np.asarray(angle_deg, float) - cut_deg, 360.0) + cut_deg
+
+
+def angle_cut_deg(angles_deg: Sequence[np.ndarray], jump: float = WRAP_JUMP_DEG) -> float:
+    """The lower edge of :data:`ANGLE_CUTS_DEG` on which the series ``angles_deg`` [deg] (one per source, in
+    time order) cross the range's edge least often (:func:`break_wraps` breaks a line there); -180 on a tie."""
+    def crossings(cut_deg: float) -> int:
+        with np.errstate(invalid="ignore"):
+            return sum(int(np.count_nonzero(np.abs(np.diff(display_angle(a, cut_deg))) > jump)) for a in angles_deg)
+
+    return min(ANGLE_CUTS_DEG, key=crossings)
+
+
+def angle_title(axis_title: str, cut_deg: float) -> str:
+    """An angle's axis title naming a display range other than the default [-180, 180)."""
+    return axis_title if cut_deg == ANGLE_CUTS_DEG[0] else f"{axis_title} on {cut_deg:g}-{cut_deg + 360:g}"
+
+
+def rows_with_data(frames: Mapping[str, pd.DataFrame], rows: Sequence[tuple[str, str]]) -> list[tuple[str, str]]:
+    """The ``rows`` (column, axis title) of which at least one frame has a finite value: a chart draws no empty
+    panel."""
+    return [(column, axis_title) for column, axis_title in rows
+            if any(column in frame and np.isfinite(frame[column].to_numpy(float)).any() for frame in frames.values())]
+
+
 def apply_time_range(fig: go.Figure, window: Sequence[float] | None) -> go.Figure:
     """Show ``window`` [s] on every x axis of a time figure and let every y axis autorange (on the data sliced to
     the window); the page applies the same window to all its time figures."""
     if window is not None:
         fig.update_xaxes(range=[float(window[0]), float(window[1])], autorange=False)
     fig.update_yaxes(autorange=True)
+    return fig
+
+
+def note_partial(fig: go.Figure, note: str | None) -> go.Figure:
+    """Append ``note`` (:func:`app.time_range.partial_text`: the part of the log shown) to the time axis title
+    of ``fig``, or to its title when it has no time axis (a track); nothing for None."""
+    if not note:
+        return fig
+    time_axes = [axis for axis in fig.select_xaxes() if axis.title.text in (TIME_TITLE, LOG_CLOCK_TITLE)]
+    for axis in time_axes:
+        axis.title.text = f"{axis.title.text} · {note}"
+    if not time_axes:
+        fig.update_layout(title_text=f"{fig.layout.title.text or ''} ({note})".lstrip())
     return fig
 
 
@@ -439,25 +486,106 @@ def quantity_figure(frames: Mapping[str, pd.DataFrame], rows: Sequence[tuple[str
         Time axis (seconds since start; one time base per source when the sources come from several logs) and the
         page's shared range [s since start].
     angle_columns : collection of str
-        Columns of angles in [-180, 180) deg, broken at their wrap-arounds.
+        Columns of angles [deg], drawn on [-180, 180) or, when they sit near +-180, on [0, 360)
+        (:func:`angle_cut_deg`, named in the axis title) and broken where they still wrap around.
+
+    Rows without a finite value in any source are left out (:func:`rows_with_data`): no empty panel.
     """
-    fig = make_subplots(rows=len(rows), cols=1, shared_xaxes=True, vertical_spacing=0.03)
+    rows = rows_with_data(frames, rows)
+    fig = make_subplots(rows=max(1, len(rows)), cols=1, shared_xaxes=True, vertical_spacing=0.03)
+
+    def base_of(source: str) -> TimeBase | None:
+        return time_base.get(source) if isinstance(time_base, Mapping) else time_base
+
+    def shown(source: str, column: str) -> np.ndarray:  # the samples of the window, for the display range
+        frame = frames[source]
+        since = (base_of(source) or TimeBase()).since_start(frame["time_s"])
+        return frame[column].to_numpy(float)[window_slice(since, window)]
+
+    cuts = {column: angle_cut_deg([shown(source, column) for source, frame in frames.items() if column in frame])
+            for column, _ in rows if column in angle_columns}
     for source, frame in frames.items():
         time_s = frame["time_s"].to_numpy(float)
-        base = time_base.get(source) if isinstance(time_base, Mapping) else time_base
         for row, (column, _) in enumerate(rows, start=1):
             if column not in frame or not frame[column].notna().any():
                 continue
-            trace = line(time_s, frame[column].to_numpy(float), source, max_points=max_points,
-                         time_base=base, window=window, wrap=column in angle_columns,
+            values = frame[column].to_numpy(float)
+            trace = line(time_s, display_angle(values, cuts[column]) if column in cuts else values, source,
+                         max_points=max_points, time_base=base_of(source), window=window, wrap=column in cuts,
                          legendgroup=source, showlegend=not any(t.name == source for t in fig.data))
             trace.line.dash = REFERENCE_DASH.get(source)
             fig.add_trace(trace, row=row, col=1)
     base_layout(fig, y_title="", height=90 + 170 * len(rows), title=title)
-    for row, (_, axis_title) in enumerate(rows, start=1):
-        fig.update_yaxes(title_text=axis_title, row=row, col=1)
-    _time_titles(fig, len(rows), time_base)
+    for row, (column, axis_title) in enumerate(rows, start=1):
+        fig.update_yaxes(title_text=angle_title(axis_title, cuts[column]) if column in cuts else axis_title,
+                         row=row, col=1)
+    _time_titles(fig, max(1, len(rows)), time_base)
     return apply_time_range(fig, window)
+
+
+#: Quantile of |innovation| [-] the innovation axes show at least: the in-flight innovations, not a landing spike.
+INNOVATION_QUANTILE = 0.99
+#: The innovation axes show at least this many robust standard deviations of the innovations [-] (1.4826 x their
+#: median absolute deviation, which a short spike does not inflate): every sample of a Gaussian innovation is in
+#: view.
+INNOVATION_SIGMAS = 5.0
+#: Median absolute deviation -> standard deviation of a Gaussian [-].
+MAD_TO_SIGMA = 1.4826
+#: Margin of the innovation axes beyond the larger of the two [-].
+INNOVATION_HEADROOM = 1.2
+#: Name of the markers of the innovations beyond the axis, drawn at its edge.
+OFF_SCALE = "off-scale"
+
+
+def innovation_limit(innovation) -> float:
+    """Half-range of an innovation axis [innovation unit]: :data:`INNOVATION_HEADROOM` times the larger of the
+    :data:`INNOVATION_QUANTILE` quantile of |innovation| and :data:`INNOVATION_SIGMAS` robust standard deviations
+    of the innovations; NaN without a finite nonzero value.
+
+    Scaled to the innovations themselves, not to sqrt(S): a conservative filter's +-2 sqrt(S) envelope may then lie
+    beyond the axis, which shows that its innovations are smaller than it expects."""
+    values = np.asarray(innovation, float)
+    values = values[np.isfinite(values)]
+    if not values.size:
+        return np.nan
+    robust_sigma = MAD_TO_SIGMA * np.median(np.abs(values - np.median(values)))
+    limit = INNOVATION_HEADROOM * max(float(np.quantile(np.abs(values), INNOVATION_QUANTILE)),
+                                      INNOVATION_SIGMAS * robust_sigma)
+    return limit if limit > 0 else np.nan
+
+
+def _off_scale_markers(fig: go.Figure, row: int, time_s: np.ndarray, innovation: np.ndarray, limit: float,
+                       base: TimeBase, max_points: int) -> int:
+    """Mark the innovations beyond +-``limit`` at the axis edge of ``row`` (their value on hover); returns how
+    many there are."""
+    with np.errstate(invalid="ignore"):
+        beyond = np.flatnonzero(np.abs(innovation) > limit)
+    if len(beyond):
+        beyond_shown = beyond[::max(1, int(np.ceil(len(beyond) / max_points)))]
+        since = base.since_start(time_s[beyond_shown])
+        values = innovation[beyond_shown]
+        labels = [f"{label}<br>innovation {value:.4g} (off-scale)"
+                  for label, value in zip(base.hover_labels(since), values, strict=True)]
+        fig.add_trace(go.Scatter(x=since, y=np.sign(values) * limit, mode="markers", name=OFF_SCALE,
+                                 legendgroup=OFF_SCALE, showlegend=not any(t.name == OFF_SCALE for t in fig.data),
+                                 customdata=labels, hovertemplate="%{customdata}<extra></extra>",
+                                 marker={"color": "#d62728", "size": 7,
+                                         "symbol": np.where(values > 0, "triangle-up", "triangle-down")}),
+                      row=row, col=1)
+    return len(beyond)
+
+
+def _scale_innovation_rows(fig: go.Figure, limits: Sequence[float], off_scale: int, total: int) -> go.Figure:
+    """Fix every row's y range to +-its limit (rows without one autorange) and say how many innovations of the
+    window are beyond it."""
+    for row, limit in enumerate(limits, start=1):
+        if np.isfinite(limit):
+            fig.update_yaxes(range=[-limit, limit], autorange=False, row=row, col=1)
+    if off_scale:
+        fig.add_annotation(text=f"{off_scale} of {total} innovations beyond the axis (▲▼ at its edge)",
+                           xref="paper", yref="paper", x=1.0, y=1.0, xanchor="right", yanchor="bottom",
+                           showarrow=False, font={"color": "#d62728"})
+    return fig
 
 
 def innovation_figure(diagnostics: pd.DataFrame, units: Mapping[str, str], *, title: str,
@@ -475,6 +603,9 @@ def innovation_figure(diagnostics: pd.DataFrame, units: Mapping[str, str], *, ti
         Unit of each component's innovation.
     time_base, window
         Time axis (seconds since start) and the page's shared range [s since start].
+
+    Each row's y axis spans +-:func:`innovation_limit` of the window's samples; the innovations beyond it are
+    marked at the edge (:data:`OFF_SCALE`) and counted in a note.
     """
     base = time_base or TimeBase()
     parts = [(str(component), part) for component, part
@@ -482,6 +613,8 @@ def innovation_figure(diagnostics: pd.DataFrame, units: Mapping[str, str], *, ti
     components = [component for component, _ in parts]
     fig = make_subplots(rows=max(1, len(components)), cols=1, shared_xaxes=True, vertical_spacing=0.04)
     options = {"max_points": max_points, "time_base": time_base, "window": window}
+    limits: list[float] = []
+    off_scale = total = 0
     for row, (_, part) in enumerate(parts, start=1):
         time_s = part["time_s"].to_numpy(float)
         bound = 2.0 * np.sqrt(part["innovation_var"].to_numpy(float))
@@ -493,6 +626,11 @@ def innovation_figure(diagnostics: pd.DataFrame, units: Mapping[str, str], *, ti
         fig.add_trace(line(time_s, part["innovation"].to_numpy(float), "innovation", color="#1f77b4",
                            legendgroup="innovation", showlegend=first, **options), row=row, col=1)
         shown = part.iloc[window_slice(base.since_start(time_s), window)]
+        innovation = shown["innovation"].to_numpy(float)
+        limits.append(innovation_limit(innovation))
+        off_scale += _off_scale_markers(fig, row, shown["time_s"].to_numpy(float), innovation, limits[-1], base,
+                                        max_points)
+        total += int(np.isfinite(innovation).sum())
         rejected = shown.loc[~shown["accepted"].to_numpy(dtype=bool)]
         if len(rejected):
             step = max(1, int(np.ceil(len(rejected) / max_points)))
@@ -507,7 +645,7 @@ def innovation_figure(diagnostics: pd.DataFrame, units: Mapping[str, str], *, ti
     for row, component in enumerate(components, start=1):
         fig.update_yaxes(title_text=f"{component} [{units.get(component, '-')}]", row=row, col=1)
     _time_titles(fig, max(1, len(components)), time_base)
-    return apply_time_range(fig, window)
+    return _scale_innovation_rows(apply_time_range(fig, window), limits, off_scale, total)
 
 
 def _nis_frame(fig: go.Figure, band: tuple[float, float], window: int, *, title: str | None, time_base,
@@ -660,10 +798,18 @@ def overlay_innovation_figure(per_run: Mapping[str, pd.DataFrame], estimator: st
                               window: Sequence[float] | None = None) -> go.Figure:
     """Innovations of one estimator's sensor in several runs (run name -> its diagnostics rows, in overlay
     order): one row per component, one line per run (:func:`run_style`), the +-2 sqrt(S) envelope of the first
-    run that has the component in grey."""
+    run that has the component in grey; each row scaled as in :func:`innovation_figure` over all runs."""
     components = list(dict.fromkeys(str(c) for part in per_run.values() for c in part["component"].unique()))
     fig = make_subplots(rows=max(1, len(components)), cols=1, shared_xaxes=True, vertical_spacing=0.04)
     options = {"max_points": max_points, "time_base": time_base, "window": window}
+    base = time_base or TimeBase()
+    shown = {run_name: diagnostics.iloc[window_slice(base.since_start(diagnostics["time_s"]), window)]
+             for run_name, diagnostics in per_run.items()}
+    limits = []
+    for component in components:
+        parts = [part.loc[part["component"].astype(str) == component] for part in shown.values()]
+        limits.append(innovation_limit(np.concatenate([part["innovation"].to_numpy(float) for part in parts])))
+    off_scale = total = 0
     bounded: set[str] = set()
     for index, (run_name, diagnostics) in enumerate(per_run.items()):
         name = run_series_name(estimator, run_name)
@@ -684,11 +830,16 @@ def overlay_innovation_figure(per_run: Mapping[str, pd.DataFrame], estimator: st
                          showlegend=not any(t.name == name for t in fig.data), **options)
             trace.line.dash = dash
             fig.add_trace(trace, row=row, col=1)
+            inside = shown[run_name].loc[shown[run_name]["component"].astype(str) == component]
+            innovation = inside["innovation"].to_numpy(float)
+            off_scale += _off_scale_markers(fig, row, inside["time_s"].to_numpy(float), innovation,
+                                            limits[row - 1], base, max_points)
+            total += int(np.isfinite(innovation).sum())
     base_layout(fig, y_title="", height=90 + 160 * max(1, len(components)), title=title)
     for row, component in enumerate(components, start=1):
         fig.update_yaxes(title_text=f"{component} [{units.get(component, '-')}]", row=row, col=1)
     _time_titles(fig, max(1, len(components)), time_base)
-    return apply_time_range(fig, window)
+    return _scale_innovation_rows(apply_time_range(fig, window), limits, off_scale, total)
 
 
 def overlay_nis_figure(per_run: Mapping[str, pd.DataFrame], estimator: str, window: int,

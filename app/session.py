@@ -138,10 +138,14 @@ def save_calibration(sha256: str, settings: dict, calibration_json: str) -> Stor
 LOCAL_ZOOM_BUTTONS = ("zoom2d", "pan2d", "lasso2d", "zoomIn2d", "zoomOut2d", "autoScale2d")
 
 
-def time_range_slider(range_key: str, span: tuple[float, float], help_text: str) -> tuple[float, float]:
+def time_range_slider(range_key: str, span: tuple[float, float], help_text: str,
+                      owner: object = None) -> tuple[float, float]:
     """The page's shared time range [s since start] (:mod:`app.time_range`): a slider keyed ``range_key`` over
-    ``span`` with a *Full span* button; a box dragged on any :func:`time_chart` of the page sets it too."""
-    st.session_state[range_key] = figures.clamp_window(st.session_state.get(range_key), span)
+    ``span`` with a *Full span* button; a box dragged on any :func:`time_chart` of the page sets it too.
+
+    The range belongs to ``owner`` (default: the selected log's SHA-256; a page of runs or of several logs passes
+    them too): another owner starts on the full span (:func:`app.time_range.owned_range`)."""
+    time_range.owned_range(st.session_state, range_key, selected_sha256() if owner is None else owner, span)
     left, right = st.columns([6, 1], vertical_alignment="bottom")
     right.button("Full span", key=f"{range_key}_reset", on_click=time_range.reset_range,
                  args=(st.session_state, range_key, span), disabled=st.session_state[range_key] == span,
@@ -153,7 +157,9 @@ def time_range_slider(range_key: str, span: tuple[float, float], help_text: str)
 
 def time_chart(fig: go.Figure, key: str, range_key: str, span: tuple[float, float], container=st) -> None:
     """Draw a time chart of the page (x: seconds since start) on which a horizontal box drag sets the page's
-    range ``range_key`` (:func:`app.time_range.take_box_selection`), so every chart of the page follows."""
+    range ``range_key`` (:func:`app.time_range.take_box_selection`), so every chart of the page follows; a
+    chart showing part of the log says so on its time axis (:func:`app.time_range.partial_text`)."""
+    figures.note_partial(fig, time_range.partial_text(st.session_state.get(range_key), span))
     fig.update_layout(dragmode="select", selectdirection="h")
     container.plotly_chart(fig, key=key, selection_mode="box",
                            on_select=partial(time_range.take_box_selection, st.session_state, key, range_key, span),

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from app.comparison import nis_band
+from app.comparison import OTHER_REFERENCE, nis_band
 from calib.figures import ChannelConsistency
 from calib.fir import default_cutoff_hz
 from calib.tau import COLOURED_LAG1, TauSelection
@@ -432,11 +432,14 @@ CHANGE_COLORS = {"improved": "rgba(44,160,44,0.25)", "regressed": "rgba(214,39,4
 
 def rms_delta_cell(rms: float, delta: float, delta_pct: float, change: str, is_baseline: bool) -> str:
     """Text of one cell of :func:`rms_delta_table`: the RMS, then (not for the baseline) the difference to the
-    baseline, absolute and in %, and the change mark (▼ improved, ▲ regressed, ≈ unchanged)."""
+    baseline, absolute and in %, and the change mark (▼ improved, ▲ regressed, ≈ unchanged); a run against another
+    reference than the baseline's has no difference (``"(other reference)"``)."""
     if not math.isfinite(rms):
         return "–"
     if is_baseline:
         return f"{rms:.2f} (baseline)"
+    if change == OTHER_REFERENCE:
+        return f"{rms:.2f} ({OTHER_REFERENCE})"
     if not math.isfinite(delta):
         return f"{rms:.2f} (no baseline)"
     percent = f"{delta_pct:+.1f} %" if math.isfinite(delta_pct) else "– %"

@@ -1,6 +1,10 @@
 """A page's shared time range (issue 14, "zoom one, all follow"): the value of the page's time-range slider, set
 also by a box dragged across any time chart of the page, so every chart follows and is re-sampled to the window.
 
+The range belongs to what the page shows (issue 34): :func:`owned_range` resets it to the full span when the
+owner (the log's SHA-256, with the runs shown where a page shows runs) changes, so opening another log or a new
+run shows the whole flight, and :func:`partial_text` says when a chart shows part of it.
+
 Pure logic on the selection events and a session-state mapping (no Streamlit import), tested directly; the pages
 reach it through :func:`app.session.time_range_slider` and :func:`app.session.time_chart`.
 
@@ -16,6 +20,8 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, MutableMapping, Sequence
+
+from app.figures import clamp_window
 
 #: Narrowest range a box sets [s]: a click-sized drag still shows a few samples (12 at 250 Hz).
 MIN_WIDTH_S = 0.05
@@ -80,3 +86,31 @@ def take_box_selection(state: MutableMapping, chart_key: str, range_key: str, sp
 def reset_range(state: MutableMapping, range_key: str, span: Window) -> None:
     """Callback of the pages' *Full span* button: the range back to the whole ``span`` [s]."""
     state[range_key] = (float(span[0]), float(span[1]))
+
+
+def owner_key(range_key: str) -> str:
+    """Session-state key of the owner of the range ``range_key`` (:func:`owned_range`)."""
+    return f"{range_key}_owner"
+
+
+def owned_range(state: MutableMapping, range_key: str, owner: object, span: Window) -> Window:
+    """The page's range ``state[range_key]`` [s] for what the page shows now, ``owner`` (hashable: the log's
+    SHA-256, or a tuple of logs and runs): the whole ``span`` [s] when the owner differs from the one the range was
+    set for (another log, a new run) or there is no range yet, else the kept range clipped to the span. Stores the
+    range and its owner in ``state``."""
+    kept = state.get(range_key) if state.get(owner_key(range_key)) == owner else None
+    state[range_key] = clamp_window(kept, span)
+    state[owner_key(range_key)] = owner
+    return state[range_key]
+
+
+def is_partial(window: Sequence[float] | None, span: Window, step_s: float = STEP_S) -> bool:
+    """Whether ``window`` [s] shows less than ``span`` [s] (by more than half a slider step at either end)."""
+    return window is not None and (window[0] > span[0] + 0.5 * step_s or window[1] < span[1] - 0.5 * step_s)
+
+
+def partial_text(window: Sequence[float] | None, span: Window) -> str | None:
+    """``"showing 60.0-120.0 s of 0-864 s"`` when ``window`` [s] is part of ``span`` [s], else None."""
+    if not is_partial(window, span):
+        return None
+    return f"showing {window[0]:.1f}-{window[1]:.1f} s of {span[0]:.0f}-{span[1]:.0f} s"

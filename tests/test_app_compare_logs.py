@@ -55,7 +55,7 @@ def test_the_rms_of_one_estimator_per_log_against_the_baseline_log():
     second = pd.DataFrame([[3.0, 0.5]], index=["three_stage"], columns=columns)
     no_run = pd.DataFrame([[1.0, 1.0]], index=["full_state_direct"], columns=columns)
     table = comparison.log_rms_comparison({"a · r1": first, "b · r2": second, "c · r3": no_run}, "three_stage",
-                                          "a · r1")
+                                          "a · r1", dict.fromkeys(["a · r1", "b · r2", "c · r3"], "truth"))
     assert set(table["estimator"]) == {"three_stage"} and list(table["run"].unique()) == ["a · r1", "b · r2"]
     height = table.set_index(["run", "quantity"])
     assert height.loc[("b · r2", "Height (m)"), "delta"] == pytest.approx(1.0)
@@ -63,6 +63,37 @@ def test_the_rms_of_one_estimator_per_log_against_the_baseline_log():
     assert height.loc[("b · r2", "Wind (m/s)"), "change"] == comparison.IMPROVED
     wide = tables.rms_delta_table(table, "a · r1")
     assert wide.loc[("b · r2", "three_stage"), "Height (m)"] == "3.00 (+1.00, +50.0 %) ▲"
+
+
+def test_logs_against_another_reference_than_the_baseline_get_no_verdict():
+    """Issue 34: an octocopter against its onboard estimate is not "regressed" against a simulated mission against
+    its truth; only like references compare, and a sentence says why the others are not."""
+    columns = ["Position (m)"]
+    truth = pd.DataFrame([[3.0]], index=["three_stage"], columns=columns)
+    onboard = pd.DataFrame([[50.0]], index=["three_stage"], columns=columns)
+    other_truth = pd.DataFrame([[6.0]], index=["three_stage"], columns=columns)
+    references = {"paper · r1": "truth", "octo · r2": "onboard", "sim · r3": "truth"}
+    table = comparison.log_rms_comparison({"paper · r1": truth, "octo · r2": onboard, "sim · r3": other_truth},
+                                          "three_stage", "paper · r1", references).set_index("run")
+    assert table.at["octo · r2", "change"] == comparison.OTHER_REFERENCE
+    assert np.isnan(table.at["octo · r2", "delta"]) and np.isnan(table.at["octo · r2", "delta [%]"])
+    assert table.at["sim · r3", "change"] == comparison.REGRESSED  # truth with truth still compares
+    wide = tables.rms_delta_table(table.reset_index(), "paper · r1")
+    assert wide.loc[("octo · r2", "three_stage"), "Position (m)"] == "50.00 (other reference)"
+    styled = tables.rms_delta_style(table.reset_index(), "paper · r1").to_html()
+    assert styled.count("background-color") == 1  # only the like-for-like row is coloured
+    text = comparison.other_reference_text(references, "paper · r1")
+    assert "octo · r2 against the onboard estimate" in text and "sim · r3" not in text
+    assert "baseline, which is against the ground truth" in text
+    assert comparison.other_reference_text(references, "sim · r3").startswith("Not compared")
+    assert comparison.other_reference_text({"a": "truth", "b": "truth"}, "a") is None
+    assert comparison.like_for_like("onboard", "onboard") and not comparison.like_for_like(None, None)
+
+
+def test_every_reference_has_its_plain_sentence():
+    assert comparison.reference_sentence("truth") == "Errors against the ground truth."
+    assert "not necessarily better" in comparison.reference_sentence("onboard")
+    assert "no errors" in comparison.reference_sentence(None)
 
 
 def test_runs_with_an_estimator():

@@ -71,3 +71,24 @@ def test_sun_body_angles_and_cell_states():
     states = sun_compare.cell_states(solution, SunDevice())
     assert states[0, 0] == sun_compare.CELL_LIT and states[0, 1] == sun_compare.CELL_FAULTY
     assert states[0, 4] == sun_compare.CELL_DARK  # side cell 5 faces backwards (azimuth 180 deg)
+
+
+def test_no_airspeed_is_drawn_for_a_multicopter_without_an_airspeed_sensor():
+    """Issue 34: an "onboard airspeed" (|v - zero wind|, the ground speed again) was drawn for an octocopter."""
+    multicopter = _log()
+    multicopter.meta.vehicle_type = 2  # MAV_TYPE_QUADROTOR, no airspeed stream
+    states = _estimate(multicopter, "three_stage", 0.0, 0.0)
+    result = comparison.compare(states, multicopter)
+    frames = comparison.without_absent_airspeed(result.quantities, multicopter)
+    assert set(frames) == set(result.quantities)
+    assert all("airspeed_m_s" not in frame and "ground_speed_m_s" in frame for frame in frames.values())
+    rows = comparison.STATE_PANELS["Altitude and speeds"]
+    assert comparison.missing_rows_text(frames, rows, comparison.MISSING_STATES_WHY).startswith(
+        "Not drawn, no value in any source: airspeed. ")
+    for vehicle_type, streams in ((1, {}), (2, {"airspeed": pd.DataFrame({"airspeed_m_s": [12.0]}, index=[10.0])})):
+        log = FlightLog(streams={**multicopter.streams, **streams}, meta=multicopter.meta)
+        log.meta.vehicle_type = vehicle_type  # a fixed-wing, or a multicopter with an airspeed sensor
+        assert comparison.has_airspeed(log)
+        assert all("airspeed_m_s" in frame for frame in comparison.without_absent_airspeed(
+            result.quantities, log).values())
+    assert comparison.missing_rows_text(result.quantities, rows, "") is None

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pandas as pd
+import pytest
 
 from app import figures, tables
 from calib.segments import Segment
@@ -228,3 +229,75 @@ def test_baro_gps_altitude_note_explains_a_large_offset_only():
     near = {"GPS": gps, "barometer": pd.Series(gps.to_numpy() + 3.0, index=time_s)}
     assert tables.baro_gps_altitude_note(near, 1013.25) is None
     assert tables.baro_gps_altitude_note({"GPS": gps}, 1013.25) is None
+
+
+def _heading_frames(center_deg: float) -> dict[str, pd.DataFrame]:
+    """An estimate and the truth of a heading wandering by +-10 deg about ``center_deg`` for 100 s."""
+    time_s = np.arange(0.0, 100.0, 0.1)
+    heading = center_deg + 10.0 * np.sin(time_s / 5.0)
+    wrapped = (heading + 180.0) % 360.0 - 180.0
+    return {"three_stage": pd.DataFrame({"time_s": time_s, "yaw_deg": wrapped}),
+            "truth": pd.DataFrame({"time_s": time_s, "yaw_deg": (wrapped + 1.0 + 180.0) % 360.0 - 180.0})}
+
+
+def test_a_heading_near_180_deg_is_drawn_on_0_to_360_in_one_piece():
+    """Issue 34: a yaw about +-180 deg broke into fragments on a +-200 deg axis."""
+    rows = [("yaw_deg", "yaw [deg]")]
+    south = figures.quantity_figure(_heading_frames(180.0), rows, title="Attitude", time_base=figures.TimeBase())
+    assert south.layout.yaxis.title.text == "yaw [deg] on 0-360"
+    for trace in south.data:
+        assert np.isfinite(trace.y).all() and np.min(trace.y) > 160.0 and np.max(trace.y) < 200.0  # no break
+    north = figures.quantity_figure(_heading_frames(0.0), rows, title="Attitude", time_base=figures.TimeBase())
+    assert north.layout.yaxis.title.text == "yaw [deg]"  # the default range, about 0
+    assert all(np.isfinite(trace.y).all() and np.max(np.abs(trace.y)) < 20.0 for trace in north.data)
+    assert figures.angle_cut_deg([np.array([170.0, -175.0, 178.0])]) == 0.0
+    assert figures.angle_cut_deg([np.array([-10.0, 10.0, 350.0 - 360.0])]) == -180.0
+    assert figures.display_angle([-170.0, 170.0, 0.0], 0.0).tolist() == [190.0, 170.0, 0.0]
+
+
+def test_rows_without_any_value_are_left_out_and_every_chart_keeps_its_time_axis():
+    """Issue 34: the Errors tab of a ground walk drew empty airspeed / course / wind panels and no time axis."""
+    time_s = np.arange(0.0, 10.0, 0.1)
+    errors = {"three_stage": pd.DataFrame({"time_s": time_s, "roll_deg": np.sin(time_s),
+                                           "airspeed_m_s": np.nan, "wind_m_s": np.nan})}
+    rows = [("roll_deg", "roll error [deg]"), ("airspeed_m_s", "airspeed error [m/s]"),
+            ("wind_m_s", "wind error [m/s]")]
+    assert figures.rows_with_data(errors, rows) == rows[:1]
+    fig = figures.quantity_figure(errors, rows, title="Errors", time_base=figures.TimeBase())
+    assert [t.yaxis for t in fig.data] == ["y"] and "yaxis2" not in fig.layout
+    assert fig.layout.xaxis.title.text == figures.TIME_TITLE
+
+
+def _spiky_innovations(n: int = 20_000, spike_m_s2: float = 120.0) -> pd.DataFrame:
+    """Accelerometer innovations (standard deviation 0.5 m/s^2) with a 20-sample landing spike."""
+    rng = np.random.default_rng(7)
+    innovation = rng.normal(0.0, 0.5, n)
+    innovation[-30:-10] = spike_m_s2 * np.sign(np.arange(20) % 2 - 0.5)
+    return pd.DataFrame({"time_s": np.arange(n) / 50.0, "component": "x", "innovation": innovation,
+                         "innovation_var": np.full(n, 0.25), "accepted": True})
+
+
+def test_innovations_are_scaled_to_the_flight_not_to_a_landing_spike():
+    """Issue 34: a +-120 m/s^2 landing spike flattened the in-flight innovations."""
+    diagnostics = _spiky_innovations()
+    limit = figures.innovation_limit(diagnostics["innovation"])
+    assert limit == pytest.approx(figures.INNOVATION_HEADROOM * figures.INNOVATION_SIGMAS * 0.5, rel=0.05)
+    fig = figures.innovation_figure(diagnostics, {"x": "m/s^2"}, title="accel", time_base=figures.TimeBase())
+    assert tuple(fig.layout.yaxis.range) == pytest.approx((-limit, limit)) and not fig.layout.yaxis.autorange
+    [off] = [t for t in fig.data if t.name == figures.OFF_SCALE]
+    assert len(off.x) == 20 and np.allclose(np.abs(off.y), limit)  # at the edge, with the spike's sign
+    assert set(off.marker.symbol) == {"triangle-up", "triangle-down"}
+    assert fig.layout.annotations[0].text.startswith("20 of 20000 innovations beyond the axis")
+    landing = figures.innovation_figure(diagnostics, {"x": "m/s^2"}, title="accel", time_base=figures.TimeBase(),
+                                        window=(399.0, 400.0))  # zoomed on the landing: the spike in view
+    assert landing.layout.yaxis.range[1] > 120.0 and not any(t.name == figures.OFF_SCALE for t in landing.data)
+    assert np.isnan(figures.innovation_limit([np.nan])) and np.isnan(figures.innovation_limit([0.0, 0.0]))
+
+
+def test_overlaid_innovations_share_one_scale_per_row():
+    first, second = _spiky_innovations(), _spiky_innovations(spike_m_s2=60.0)
+    fig = figures.overlay_innovation_figure({"default": first, "tuned": second}, "three_stage", {"x": "m/s^2"},
+                                            title="accel", time_base=figures.TimeBase())
+    limit = figures.innovation_limit(np.r_[first["innovation"], second["innovation"]])
+    assert tuple(fig.layout.yaxis.range) == pytest.approx((-limit, limit))
+    assert sum(len(t.x) for t in fig.data if t.name == figures.OFF_SCALE) == 40

@@ -156,7 +156,7 @@ def test_estimators_run_compare_and_diagnose(open_page, workspace_dir):
     assert len(charts) == 1 and json.loads(charts[0].proto.spec)["layout"]["title"]["text"] == "Attitude"
     at.segmented_control(key="est_panel").set_value("Errors").run()
     titles = [json.loads(c.proto.spec)["layout"]["title"]["text"] for c in at.get("plotly_chart")]
-    assert titles == ["Errors against the truth"]
+    assert titles == ["Errors against the ground truth"]
 
     at.segmented_control(key="est_panel").set_value("Innovations and NIS").run()
     [summary] = _frames(at, lambda v: "mean NIS [-]" in v.columns and "estimator" in v.columns)

@@ -258,7 +258,7 @@ def test_estimators_page_compares_two_stored_runs(tmp_path: Path, monkeypatch):
     at.segmented_control(key="est_panel").set_value("Errors").run()
     assert not at.exception
     [errors] = _charts(at)
-    assert errors["layout"]["title"]["text"] == "Errors against the truth"
+    assert errors["layout"]["title"]["text"] == "Errors against the ground truth"
     assert {f"three_stage · {names[run]}" for run in (default_run, calibrated_run)} <= {
         trace["name"] for trace in errors["data"]}
 

@@ -165,7 +165,8 @@ def test_shared_range_is_applied_to_every_time_figure_of_a_page():
         y_axes = [fig.layout[name] for name in fig.layout if name.startswith("yaxis")]
         assert x_axes and all(tuple(axis.range) == window for axis in x_axes)
         assert [axis.title.text for axis in x_axes if axis.title.text] == [figures.TIME_TITLE]
-        if not isinstance(fig.data[0], go.Heatmap):  # line figures: y fitted to the window's data
+        if not isinstance(fig.data[0], go.Heatmap) and fig is not built[3]:  # y fitted to the window's data
+            # (the innovations: fixed to the window's in-flight scale, test_app_figures)
             assert all(axis.autorange is True for axis in y_axes)
         for trace in fig.data:
             if trace.x is not None and len(trace.x) and trace.x[0] is not None:
@@ -204,4 +205,7 @@ def test_angle_traces_have_no_vertical_strokes_at_wraps():
         assert not np.isnan(alt_trace.y).any()  # only angles are broken
     azimuth = pd.DataFrame({"time_s": time_s[:1000], "azimuth_deg": yaw[:1000]})
     fig = figures.quantity_figure({"sun device": azimuth}, [("azimuth_deg", "azimuth [deg]")], title="sun")
-    assert np.isnan(fig.data[0].y).any() and fig.layout.xaxis.title.text == figures.LOG_CLOCK_TITLE
+    # 0 -> 180 deg, then -180 -> 20 deg: one piece on 0-360 (issue 34), the range named in the axis title
+    assert not np.isnan(fig.data[0].y).any() and np.ptp(fig.data[0].y) == pytest.approx(199.8)
+    assert fig.layout.yaxis.title.text == "azimuth [deg] on 0-360"
+    assert fig.layout.xaxis.title.text == figures.LOG_CLOCK_TITLE

@@ -4,11 +4,14 @@ the charts' selection set-up is checked through the dashboard's pages (AppTest).
 
 from __future__ import annotations
 
+import hashlib
 import json
 
+import numpy as np
+import pandas as pd
 import pytest
 
-from app import session, time_range
+from app import figures, samples, session, time_range
 from tests.test_app_pages import SHORT_SAMPLE, open_page, workspace_dir  # noqa: F401 (fixtures)
 
 SPAN = (0.0, 120.0)
@@ -75,3 +78,47 @@ def test_the_time_charts_of_a_page_select_horizontal_boxes_without_local_zoom(op
     at.button(key="sun_time_range_reset").click().run()
     slider = at.slider(key="sun_time_range")
     assert slider.min == 0.0 and tuple(slider.value) == pytest.approx((slider.min, slider.max))
+
+
+def test_the_range_belongs_to_its_log_and_resets_on_another_log_or_run():
+    """Issue 34: a range kept from the previous log (78.7 s of an octocopter) hid most of the next one."""
+    state: dict = {}
+    octo, paper = (0.0, 78.72), (0.0, 864.0)
+    assert time_range.owned_range(state, "range", "octo", octo) == octo  # no range yet: the whole log
+    state["range"] = (10.0, 20.0)  # the user zooms
+    assert time_range.owned_range(state, "range", "octo", octo) == (10.0, 20.0)  # kept on the same log
+    assert time_range.owned_range(state, "range", "paper", paper) == paper  # another log: its whole span
+    assert state["range"] == paper and state[time_range.owner_key("range")] == "paper"
+    state["range"] = (100.0, 900.0)
+    assert time_range.owned_range(state, "range", "paper", paper) == (100.0, 864.0)  # clipped to the span
+    assert time_range.owned_range(state, "range", ("paper", "run1", "run2"), paper) == paper  # a new run shown
+
+
+def test_a_partial_range_is_named_and_the_full_span_is_not():
+    assert time_range.partial_text((60.0, 120.0), (0.0, 864.0)) == "showing 60.0-120.0 s of 0-864 s"
+    assert time_range.partial_text((0.0, 864.0), (0.0, 864.0)) is None
+    assert time_range.partial_text((0.0, 863.999), (0.0, 864.0)) is None  # within half a slider step
+    assert time_range.partial_text(None, (0.0, 864.0)) is None
+
+
+def test_a_chart_of_part_of_the_log_says_so_on_its_time_axis():
+    series = {"GPS": pd.Series(np.arange(10.0), index=np.arange(10.0))}
+    fig = figures.time_series_figure(series, "altitude [m]", time_base=figures.TimeBase(), window=(2.0, 5.0))
+    figures.note_partial(fig, time_range.partial_text((2.0, 5.0), (0.0, 9.0)))
+    assert fig.layout.xaxis.title.text == f"{figures.TIME_TITLE} · showing 2.0-5.0 s of 0-9 s"
+    track = figures.note_partial(figures.track_figure({}), "showing 2.0-5.0 s of 0-9 s")
+    assert track.layout.title.text == "Track in local NED (showing 2.0-5.0 s of 0-9 s)"  # no time axis: the title
+    assert figures.note_partial(figures.track_figure({}), None).layout.title.text == "Track in local NED"
+
+
+def test_opening_another_log_shows_its_whole_span(open_page):  # noqa: F811
+    at = open_page("views/overview.py", SHORT_SAMPLE)
+    short_span = (at.slider(key="overview_time_range").min, at.slider(key="overview_time_range").max)
+    at.slider(key="overview_time_range").set_value((10.0, 20.0)).run()
+    assert tuple(at.slider(key="overview_time_range").value) == pytest.approx((10.0, 20.0))
+    paper = hashlib.sha256((samples.SAMPLE_DIR / "paper.ulg").read_bytes()).hexdigest()
+    at.sidebar.selectbox[0].set_value(paper).run()
+    assert not at.exception
+    slider = at.slider(key="overview_time_range")
+    assert slider.max > 5 * short_span[1]  # the bundled mission, much longer than the short sample
+    assert tuple(slider.value) == pytest.approx((slider.min, slider.max))

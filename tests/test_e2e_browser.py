@@ -39,7 +39,8 @@ SETTLED_JS = ("() => !document.querySelector('[data-testid=\"stStatusWidget\"]')
               " && !document.querySelector('[data-testid=\"stSkeleton\"]')")
 #: Every plotly chart of the page: its title, trace names, sizes and types, first x axis range and smallest
 #: finite x.
-PLOTS_JS = """() => {
+#: JavaScript: ``values(x)``, a trace's data as a plain array (plotly may send base64 ``{dtype, bdata}``).
+VALUES_JS = """
     const DTYPES = {f8: Float64Array, f4: Float32Array, i4: Int32Array, u4: Uint32Array, i2: Int16Array,
                     u2: Uint16Array, i1: Int8Array, u1: Uint8Array};
     const values = x => {  // a plain or typed array, or plotly's base64 {dtype, bdata}
@@ -49,7 +50,8 @@ PLOTS_JS = """() => {
             return Array.from(new DTYPES[x.dtype](bytes.buffer));
         }
         return Array.from(x);
-    };
+    };"""
+PLOTS_JS = """() => {""" + VALUES_JS + """
     return [...document.querySelectorAll('.js-plotly-plot')].map(gd => {
         const data = gd.data || [], layout = gd.layout || {};
         let xmin = Infinity;
@@ -139,12 +141,14 @@ def _settle(page) -> None:
     assert exceptions.count() == 0, exceptions.first.inner_text()
 
 
-def _screenshot(page, name: str) -> None:
-    """Full-height screenshot of the main area under ``test-artifacts/``."""
+def _screenshot(page, name: str | Path) -> None:
+    """Full-height screenshot of the main area, ``name``.png under ``test-artifacts/`` (a relative path)."""
+    path = ARTIFACTS_DIR / f"{name}.png"
+    path.parent.mkdir(parents=True, exist_ok=True)
     height = page.evaluate("() => document.querySelector('[data-testid=\"stMain\"]').scrollHeight")
     page.set_viewport_size({"width": 1400, "height": min(max(height, 1000), 9000)})
     time.sleep(1.0)  # let plotly redraw at the new size
-    page.screenshot(path=str(ARTIFACTS_DIR / f"{name}.png"))
+    page.screenshot(path=str(path))
     page.set_viewport_size({"width": 1400, "height": 1000})
 
 
@@ -201,6 +205,21 @@ def _drag_box(page, title: str, start: float, end: float) -> None:
 def _open(page, title: str) -> None:
     page.locator("[data-testid='stSidebarNav'] a", has_text=title).first.click()
     page.locator("[data-testid='stMain'] h1", has_text=title).wait_for()
+    _settle(page)
+
+
+def _add_log(page, log: Path) -> None:
+    """Upload ``log`` on the Home page and add it to the workspace (a stored log is recognised); it is then the
+    log open in the sidebar."""
+    page.locator("[data-testid='stSidebarNav'] a", has_text="Home").first.click()
+    uploader = page.locator("[data-testid='stFileUploader']").filter(has_text="PX4 ULog")
+    uploader.wait_for()
+    _settle(page)
+    uploader.locator("input[type='file']").set_input_files(str(log))
+    uploader.locator("[data-testid='stFileChipDeleteBtn']").wait_for()
+    page.get_by_role("button", name="Add to the workspace").click()
+    page.wait_for_function("() => document.querySelector('input[aria-label=\"Flight log\"]')"
+                           f".value.startsWith('{log.name}')", timeout=SLOW_MS)
     _settle(page)
 
 
@@ -338,16 +357,7 @@ def test_the_unix_clock_log_starts_near_zero_in_a_browser(page, real_logs_dir):
     """PX4's sample_px4_events.ulg (SITL) has a log clock in Unix time (1.7e9 s): its time axes still start near 0
     (issue 14)."""
     log = real_logs_dir / "sample_px4_events.ulg"
-    page.locator("[data-testid='stSidebarNav'] a", has_text="Home").first.click()
-    uploader = page.locator("[data-testid='stFileUploader']").filter(has_text="PX4 ULog")
-    uploader.wait_for()
-    _settle(page)
-    uploader.locator("input[type='file']").set_input_files(str(log))
-    uploader.locator("[data-testid='stFileChipDeleteBtn']").wait_for()
-    page.get_by_role("button", name="Add to the workspace").click()
-    page.wait_for_function("() => document.querySelector('input[aria-label=\"Flight log\"]')"
-                           f".value.startsWith('{log.name}')", timeout=SLOW_MS)
-    _settle(page)
+    _add_log(page, log)
     _open(page, "Overview")
     altitude = _plot(page, "Altitude and flight phases", lambda plot: plot["xmin"] is not None)
     assert -1 < altitude["xmin"] < 5, altitude["xmin"]  # (time 0 is the first IMU sample: a barometer may lead)
@@ -388,3 +398,163 @@ def test_a_batch_output_directory_on_the_fleet_page_in_a_browser(page, batch_out
     sizes = dict(zip(trend["names"], trend["sizes"], strict=True))
     assert sizes == {VEHICLE: N_FLIGHTS, FLAG_TRACE: len(flagged)}, trend
     _screenshot(page, "fleet")
+
+
+# ---------------------------------------------------------------------------------------------------- issue 34
+#: Screenshots of the issue-34 checks (under test-artifacts/), for a human to look at.
+SHOTS_DIR = Path("issue34")
+OCTOCOPTER = "px4_1.14_octo_flight_61.ulg"
+GROUND_WALK = "arduplane_4.0.8_ground_walk.bin"
+MISSION = "paper.ulg"
+#: One chart (title starting with the argument) in detail: axis titles and ranges, annotations, and per trace its
+#: name, y axis, points, breaks (null / NaN y) and finite y extremes.
+CHART_JS = """title => {""" + VALUES_JS + """
+    const gd = [...document.querySelectorAll('.js-plotly-plot')].find(gd => {
+        const t = gd.layout && gd.layout.title;
+        return String(t ? (typeof t === 'string' ? t : t.text || '') : '').replace(/<[^>]*>/g, '').startsWith(title);
+    });
+    if (!gd) return null;
+    const axes = {};
+    for (const [key, axis] of Object.entries(gd.layout)) {
+        if (/^[xy]axis\\d*$/.test(key)) {
+            axes[key] = {title: axis.title ? (axis.title.text || '') : '',
+                         range: axis.range ? Array.from(axis.range) : null};
+        }
+    }
+    const traces = gd.data.map(t => {
+        const y = values(t.y).map(v => (v === null ? NaN : Number(v)));
+        const finite = y.filter(Number.isFinite);
+        return {name: t.name || '', yaxis: t.yaxis || 'y', n: y.length, breaks: y.length - finite.length,
+                ymin: finite.length ? Math.min(...finite) : null, ymax: finite.length ? Math.max(...finite) : null};
+    });
+    return {axes, traces, annotations: (gd.layout.annotations || []).map(a => a.text || '')};
+}"""
+
+
+def _chart(page, title: str, check=lambda chart: True) -> dict:
+    """:data:`CHART_JS` of the chart titled ``title`` once it passes ``check``."""
+    deadline = time.monotonic() + SLOW_MS / 1000
+    while True:
+        chart = page.evaluate(CHART_JS, title)
+        if chart is not None and chart["traces"] and check(chart):
+            return chart
+        if time.monotonic() > deadline:
+            raise AssertionError(f"no chart {title!r} passing the check: {chart}")
+        time.sleep(0.5)
+
+
+def _pick_log(page, name: str) -> None:
+    """Open the stored log ``name`` in the sidebar's log picker."""
+    page.locator("[data-testid='stSidebar'] [data-testid='stSelectbox']").filter(has_text="Flight log").click()
+    page.get_by_role("option", name=re.compile(re.escape(name))).first.click()
+    page.wait_for_function("() => document.querySelector('input[aria-label=\"Flight log\"]')"
+                           f".value.startsWith('{name}')", timeout=SLOW_MS)
+    _settle(page)
+
+
+def _range_thumbs(page):
+    """The two thumbs of the page's time-range slider."""
+    slider = page.locator("[data-testid='stSlider']").filter(has_text="Time range [s since log start]")
+    return slider.get_by_role("slider")
+
+
+def _ensure_run(page, name: str) -> None:
+    """Open ``name`` on the Estimators page with a stored default run (run now when it has none)."""
+    _pick_log(page, name)
+    _open(page, "Estimators")
+    if page.get_by_text("No estimator run for this log yet").count():
+        page.get_by_role("button", name="Run estimators").click()
+        page.get_by_role("heading", name="RMS errors (paper Table 2 layout)").wait_for(timeout=RUN_MS)
+        _settle(page)
+
+
+def test_a_log_switch_shows_the_whole_flight_in_a_browser(page, real_logs_dir):
+    """Issue 34 (a): after the 78.7-s octocopter the bundled 14-min mission is shown whole, not its first 78.7 s;
+    a partial range is named on the charts; the ArduPlane log after it is whole again."""
+    _add_log(page, real_logs_dir / OCTOCOPTER)
+    _open(page, "Overview")
+    octocopter = _plot(page, "Altitude and flight phases", lambda plot: plot["xrange"] is not None)
+    assert octocopter["xrange"][1] == pytest.approx(78.7, abs=0.1), octocopter["xrange"]
+    _pick_log(page, MISSION)
+    mission = _plot(page, "Altitude and flight phases", lambda plot: plot["xrange"][1] > 100.0)
+    assert mission["xrange"] == pytest.approx([0.0, 864.0], abs=1.0), mission["xrange"]
+    thumbs = _range_thumbs(page)
+    assert float(thumbs.nth(1).get_attribute("aria-valuetext")) == pytest.approx(mission["xrange"][1], abs=0.011)
+    altitude = _chart(page, "Altitude and flight phases")
+    assert altitude["axes"]["xaxis"]["title"] == "time since log start [s]"  # the whole log: no note
+    _screenshot(page, SHOTS_DIR / "a_overview_mission_after_octocopter")
+    thumbs.nth(0).focus()
+    page.keyboard.press("PageUp")  # a tenth of the span: the chart now shows part of the flight and says so
+    _settle(page)
+    altitude = _chart(page, "Altitude and flight phases", lambda chart: "showing" in chart["axes"]["xaxis"]["title"])
+    assert re.search(r"showing 86\.\d-864\.0 s of 0-864 s", altitude["axes"]["xaxis"]["title"]), altitude["axes"]
+    _screenshot(page, SHOTS_DIR / "a_overview_mission_part_named")
+    _add_log(page, real_logs_dir / GROUND_WALK)  # the 85-s ArduPlane log after the mission's range: whole too
+    _open(page, "Overview")
+    walk = _plot(page, "Altitude and flight phases", lambda plot: plot["xrange"][1] < 100.0)
+    assert walk["xrange"] == pytest.approx([0.0, 85.14], abs=0.02), walk["xrange"]
+    _screenshot(page, SHOTS_DIR / "a_overview_ground_walk_after_mission")
+
+
+def test_the_octocopter_yaw_is_readable_in_a_browser(page, real_logs_dir):
+    """Issue 34 (b): the octocopter heads about south (yaw near +-180 deg): drawn on 0-360 in one piece."""
+    _add_log(page, real_logs_dir / OCTOCOPTER)
+    _ensure_run(page, OCTOCOPTER)
+    attitude = _chart(page, "Attitude", lambda chart: any(t["yaxis"] == "y3" for t in chart["traces"]))
+    assert attitude["axes"]["yaxis3"]["title"] == "yaw [deg] on 0-360", attitude["axes"]
+    yaw = [trace for trace in attitude["traces"] if trace["yaxis"] == "y3"]
+    assert {trace["name"] for trace in yaw} >= {"onboard", *ESTIMATORS}
+    for trace in yaw:  # one piece each (the onboard yaw wraps 10 times on -180..180), about south
+        assert trace["breaks"] <= 1 and trace["ymin"] > 90.0 and trace["ymax"] < 270.0, trace
+    _screenshot(page, SHOTS_DIR / "b_octocopter_attitude")
+    page.locator("[data-testid='stButtonGroup']").filter(has_text="Attitude").get_by_text(
+        "Altitude and speeds", exact=True).click()
+    _settle(page)
+    speeds = _chart(page, "Altitude and speeds")
+    assert "airspeed" not in " ".join(axis["title"] for axis in speeds["axes"].values())  # no sensor
+    page.get_by_text("Not drawn, no value in any source: airspeed.").wait_for()
+    _screenshot(page, SHOTS_DIR / "b_octocopter_speeds_without_airspeed")
+
+
+def test_the_in_flight_innovations_of_the_mission_are_visible_in_a_browser(page):
+    """Issue 34 (c): the accelerometer innovations of the bundled mission, not flattened by the landing spike."""
+    _ensure_run(page, MISSION)
+    page.locator("[data-testid='stButtonGroup']").filter(has_text="Attitude").get_by_text(
+        "Innovations and NIS", exact=True).click()
+    _settle(page)
+    sensor = page.locator("input[aria-label='Sensor']")
+    sensor.click(timeout=30_000)
+    sensor.fill("accel", timeout=30_000)
+    page.keyboard.press("Enter")
+    _settle(page)
+    chart = _chart(page, "three_stage: accel innovations",
+                   lambda chart: any(t["name"] == "innovation" for t in chart["traces"]))
+    inside = [t for t in chart["traces"] if t["name"] == "innovation"]
+    off_scale = [t for t in chart["traces"] if t["name"] == "off-scale"]
+    assert off_scale and chart["annotations"] and "beyond the axis" in chart["annotations"][0], chart
+    spiky = 0
+    for trace in inside:  # every row's axis fits its innovations; a spike beyond it is marked, not scaled to
+        axis = chart["axes"][trace["yaxis"].replace("y", "yaxis")]
+        low, high = axis["range"]
+        drawn = max(abs(trace["ymin"]), abs(trace["ymax"]))
+        assert high == pytest.approx(-low) and high < 1.5 * drawn, (axis, trace)
+        spiky += high < 0.1 * drawn
+    assert spiky, inside  # the landing: over ten times the in-flight scale
+    _screenshot(page, SHOTS_DIR / "c_mission_innovations")
+
+
+def test_compare_logs_refuses_a_verdict_across_references_in_a_browser(page, real_logs_dir):
+    """Issue 34 (d): the octocopter (against its onboard estimate) is not improved / regressed against the mission
+    (against its truth)."""
+    _add_log(page, real_logs_dir / OCTOCOPTER)
+    _ensure_run(page, OCTOCOPTER)
+    _ensure_run(page, MISSION)
+    _open(page, "Compare logs")
+    page.get_by_text("Not compared with the baseline").wait_for()
+    page.get_by_text("Errors against the ground truth.").wait_for()
+    page.get_by_text("lower means closer to the autopilot, not necessarily better").wait_for()
+    table = page.locator("[data-testid='stTable']").filter(has_text="(baseline)")
+    cells = table.locator("td").all_inner_texts()
+    assert any("(other reference)" in cell for cell in cells), cells
+    assert not any("▼" in cell or "▲" in cell for cell in cells), cells
+    _screenshot(page, SHOTS_DIR / "d_compare_logs_across_references")

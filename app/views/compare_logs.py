@@ -1,6 +1,7 @@
 """Compare logs: the same estimator across several logs of the workspace, each with one of its stored runs:
 attitude, errors and wind overlaid over the time since each log's start, and the RMS table of every log with its
-difference to a baseline log."""
+difference to a baseline log, like for like only: a log against another reference than the baseline's (onboard
+estimate vs ground truth) gets no improved / regressed verdict, and a sentence says why (issue 34)."""
 
 import streamlit as st
 
@@ -13,6 +14,8 @@ ESTIMATOR_KEY, LOGS_KEY, BASELINE_KEY, PANEL_KEY, RANGE_KEY = (
     "cmp_estimator", "cmp_logs", "cmp_baseline", "cmp_panel", "cmp_time_range")
 CHARTS = {"Attitude": comparison.STATE_PANELS["Attitude"], "Errors": comparison.ERROR_ROWS,
           "Wind": comparison.STATE_PANELS["Wind"]}
+#: Why a chart's row may have no value in any log.
+MISSING_WHY = {"Attitude": "", "Errors": comparison.MISSING_ERRORS_WHY, "Wind": comparison.MISSING_WIND_WHY}
 
 root = session.root()
 workspace = session.workspace()
@@ -65,13 +68,19 @@ baseline = st.selectbox("Baseline log", chosen, format_func=log_names.get, key=B
 without = [labels[sha256] for sha256, result in results.items() if result.reference is None]
 if without:
     st.warning("No ground truth and no onboard estimate, so no errors, in: " + ", ".join(without) + ".")
+references = {labels[sha256]: result.reference for sha256, result in results.items()}
 deltas = comparison.log_rms_comparison({labels[sha256]: adapters.rms_table(root, sha256, run_id)
-                                        for sha256, run_id in picked.items()}, estimator, labels[baseline])
-references = ", ".join(f"{log_runs[sha256].log_name}: {result.reference or 'none'}"
-                       for sha256, result in results.items())
-st.caption(f"Each log against its own reference ({references}). RMS (difference to the baseline **"
-           f"{labels[baseline]}**, in the quantity's unit and in % of the baseline's RMS); ▼ green improved, ▲ red "
-           f"regressed, ≈ within {comparison.RMS_CHANGE_TOLERANCE_PCT:g} %.")
+                                        for sha256, run_id in picked.items()}, estimator, labels[baseline],
+                                       references)
+for reference in dict.fromkeys(ref for ref in references.values() if ref is not None):  # what each RMS means
+    named = ", ".join(label for label, ref in references.items() if ref == reference)
+    st.markdown(f"**{session.markdown_text(named)}**: {comparison.reference_sentence(reference)}")
+st.caption(f"RMS (difference to the baseline **{labels[baseline]}**, in the quantity's unit and in % of the "
+           f"baseline's RMS, only between logs against the same reference); ▼ green improved, ▲ red regressed, ≈ "
+           f"within {comparison.RMS_CHANGE_TOLERANCE_PCT:g} %.")
+other_reference = comparison.other_reference_text(references, labels[baseline])
+if other_reference:
+    st.info(other_reference)
 if len(deltas):
     st.table(tables.rms_delta_style(deltas, labels[baseline]))
 
@@ -83,13 +92,22 @@ def overlay_plots() -> None:
     panel = st.segmented_control("Show", list(CHARTS), default="Attitude", key=PANEL_KEY) or "Attitude"
     span = (0.0, max(figures.time_span(log)[1] for log in logs.values()))
     window = session.time_range_slider(RANGE_KEY, span, "Every chart shows this range of time since each log's "
-                                       "start, with the samples in it at full resolution.")
-    frames = {sha256: result.errors if panel == "Errors" else result.quantities for sha256, result in results.items()}
+                                       "start, with the samples in it at full resolution.",
+                                       owner=tuple(picked.items()))
+    frames = {sha256: comparison.without_absent_airspeed(result.errors if panel == "Errors" else result.quantities,
+                                                         logs[sha256]) for sha256, result in results.items()}
     overlaid = [figures.LogRun(log_run.log_name, log_run.run_name, log_run.time_base, frames[sha256])
                 for sha256, log_run in log_runs.items()]
+    drawn, _, _ = figures.overlay_log_sources(overlaid, estimator)
+    missing = comparison.missing_rows_text(drawn, CHARTS[panel], MISSING_WHY[panel])
+    if not figures.rows_with_data(drawn, CHARTS[panel]):
+        st.info(missing)
+        return
     title = f"{panel}: {estimator} across logs"
     session.time_chart(figures.overlay_logs_figure(overlaid, estimator, CHARTS[panel], title=title, window=window),
                        "cmp_chart", RANGE_KEY, span)
+    if missing:
+        st.caption(missing)
 
 
 st.subheader("Comparison")

@@ -7,7 +7,7 @@ import pandas as pd
 import streamlit as st
 from streamlit.runtime.scriptrunner import add_script_run_ctx, get_script_run_ctx
 
-from app import adapters, comparison, figures, runs, session, tables
+from app import adapters, comparison, figures, runs, session, tables, time_range
 from estimators.api import DEFAULT_ESTIMATORS, ESTIMATORS, UNTRUSTED_PREFIX
 from estimators.inputs.records import HEADING_SOURCES
 
@@ -167,10 +167,10 @@ for index, (run_name, run_report) in enumerate(reports.items()):
 
 st.subheader("RMS errors (paper Table 2 layout)")
 if result.reference is None:
-    st.warning("The log has neither ground truth nor an onboard estimate: errors cannot be computed.")
+    st.warning(comparison.reference_sentence(None))
 else:
-    st.caption(f"Against the {'ground truth' if result.reference == 'truth' else 'onboard estimate (no truth)'};"
-               " position = horizontal distance, wind = horizontal vector difference; airspeed, course and wind in "
+    st.markdown(f"**{comparison.reference_sentence(result.reference)}**")
+    st.caption("Position = horizontal distance, wind = horizontal vector difference; airspeed, course and wind in "
                f"flight only (reference ground speed > {comparison.MIN_COURSE_SPEED_M_S:g} m/s). "
                f"{comparison.window_caption(result, clock.start_s)} (docs/evaluation.md).")
     if not multi:
@@ -206,7 +206,8 @@ def comparison_plots() -> None:
                                  key="est_panel")
     window = session.time_range_slider(RANGE_KEY, span, "Every time chart below shows this range, with the "
                                        "samples in it at full resolution and the y axes fitted to them (the track: "
-                                       "the part flown in it).")
+                                       "the part flown in it).", owner=(sha256, *selected))
+    note = time_range.partial_text(window, span)
     if panel == INNOVATIONS:
         (innovation_overlays if multi else innovation_plots)(window)
     elif panel == "Track":
@@ -215,27 +216,41 @@ def comparison_plots() -> None:
         if not any(tracks.values()):
             st.info("No position to draw: the log has no GPS fix (the local NED origin).")
         elif multi:
-            st.plotly_chart(figures.overlay_track_figure(tracks, time_base=clock, window=window), key="est_track")
+            st.plotly_chart(figures.note_partial(figures.overlay_track_figure(tracks, time_base=clock, window=window),
+                                                 note), key="est_track")
         else:
-            st.plotly_chart(figures.track_figure(tracks[names[run_id]], time_base=clock, window=window),
-                            key="est_track")
+            st.plotly_chart(figures.note_partial(figures.track_figure(tracks[names[run_id]], time_base=clock,
+                                                                      window=window), note), key="est_track")
     elif panel == "Errors":
         if not result.errors:
-            st.info("No reference to compute errors against.")
-        elif multi:
-            time_chart(figures.overlay_quantity_figure(
-                {name: run.errors for name, run in results.items()}, ERROR_ROWS,
-                title=f"Errors against the {result.reference}", time_base=clock, window=window), "est_errors")
+            st.info(comparison.reference_sentence(None))
         else:
-            time_chart(figures.quantity_figure(result.errors, ERROR_ROWS, title=f"Errors against the "
-                                               f"{result.reference}", time_base=clock, window=window), "est_errors")
-    elif panel is not None and multi:
-        time_chart(figures.overlay_quantity_figure({name: run.quantities for name, run in results.items()},
-                                                   PANELS[panel], title=panel, time_base=clock, window=window),
-                   "est_states")
+            st.caption(comparison.reference_sentence(result.reference))
+            rows_chart(ERROR_ROWS, {name: run.errors for name, run in results.items()},
+                       f"Errors against {comparison.REFERENCE_NAMES[result.reference]}", "est_errors",
+                       comparison.MISSING_ERRORS_WHY, window)
     elif panel is not None:
-        time_chart(figures.quantity_figure(result.quantities, PANELS[panel], title=panel, time_base=clock,
-                                           window=window), "est_states")
+        rows_chart(PANELS[panel], {name: run.quantities for name, run in results.items()}, panel, "est_states",
+                   comparison.MISSING_STATES_WHY if panel != "Wind" else comparison.MISSING_WIND_WHY, window)
+
+
+def rows_chart(rows, frames_by_run: dict, title: str, key: str, why: str, window: tuple[float, float]) -> None:
+    """A chart of ``rows`` of every shown run's frames (overlaid for several runs), without the airspeed of a log
+    that has none and without rows no source has (a sentence says which and why; no chart when none is left)."""
+    frames_by_run = {name: comparison.without_absent_airspeed(frames, log) for name, frames in frames_by_run.items()}
+    frames, _ = figures.overlay_sources(frames_by_run)
+    missing = comparison.missing_rows_text(frames, rows, why)
+    if not figures.rows_with_data(frames, rows):
+        st.info(missing)
+        return
+    if multi:
+        time_chart(figures.overlay_quantity_figure(frames_by_run, rows, title=title, time_base=clock, window=window),
+                   key)
+    else:
+        time_chart(figures.quantity_figure(next(iter(frames_by_run.values())), rows, title=title, time_base=clock,
+                                           window=window), key)
+    if missing:
+        st.caption(missing)
 
 
 def nis_table_and_choice(table: pd.DataFrame, estimators: list[str]) -> tuple[str, str | None, int]:

@@ -4,7 +4,7 @@ altitude and flight phases)."""
 
 import streamlit as st
 
-from app import adapters, figures, session, tables
+from app import adapters, figures, session, tables, time_range
 
 log = session.require_log()
 meta = log.meta
@@ -72,8 +72,9 @@ def flight_plots() -> None:
     left, right = st.columns([2, 3])
     if "GPS" not in tracks:
         left.info("No GPS fix: the track is the onboard local position about PX4's own origin.")
-    left.plotly_chart(figures.track_figure({k: v for k, v in tracks.items() if k in shown}, time_base=clock,
-                                           window=window), key="track")
+    left.plotly_chart(figures.note_partial(figures.track_figure({k: v for k, v in tracks.items() if k in shown},
+                                                                time_base=clock, window=window),
+                                           time_range.partial_text(window, span)), key="track")
     session.time_chart(figures.altitude_figure({k: v for k, v in altitudes.items() if k in shown},
                                                phases if show_phases else None, time_base=clock, window=window),
                        "altitude", RANGE_KEY, span, container=right)
