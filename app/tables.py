@@ -90,14 +90,26 @@ def baro_gps_altitude_note(altitudes: dict[str, pd.Series], qnh_hpa: float | Non
 
 
 def streams_table(meta: LogMetadata) -> pd.DataFrame:
-    """One row per stream: topic, samples, rate [Hz], gap count, longest gap [s] and where it starts [s]."""
+    """One row per stream: topic, samples, rate [Hz], gap count, longest gap [s] and where it starts [s], the gaps
+    counted within the log's span (:func:`gaps_in_span`)."""
     rows = []
     for name, info in meta.streams.items():
-        longest = max(info.gaps, key=lambda gap: gap[1]) if info.gaps else (np.nan, np.nan)
+        gaps = gaps_in_span(info.gaps, meta.start_time_s, meta.end_time_s)
+        longest = max(gaps, key=lambda gap: gap[1]) if gaps else (np.nan, np.nan)
         rows.append({"stream": name, "topic": info.topic, "samples": info.n_samples, "rate_hz": info.rate_hz,
-                     "gaps": len(info.gaps), "longest_gap_s": longest[1], "longest_gap_at_s": longest[0]})
+                     "gaps": len(gaps), "longest_gap_s": longest[1], "longest_gap_at_s": longest[0]})
     return pd.DataFrame(rows, columns=["stream", "topic", "samples", "rate_hz", "gaps", "longest_gap_s",
                                        "longest_gap_at_s"])
+
+
+def gaps_in_span(gaps: Sequence[tuple[float, float]], start_s: float, end_s: float) -> list[tuple[float, float]]:
+    """The ``(start_time_s, length_s)`` gaps [s] clipped to the log's span ``start_s .. end_s`` (first to last IMU
+    sample, the span every page shows): a stream logged before the IMU (an ArduPilot magnetometer) has its gap
+    before the start left out, not placed at a negative time since the start. A NaN bound does not clip."""
+    low = start_s if np.isfinite(start_s) else -np.inf
+    high = end_s if np.isfinite(end_s) else np.inf
+    clipped = [(max(t0_s, low), min(t0_s + length_s, high) - max(t0_s, low)) for t0_s, length_s in gaps]
+    return [(t0_s, length_s) for t0_s, length_s in clipped if length_s > 0.0]
 
 
 def missing_streams(log: FlightLog) -> pd.DataFrame:

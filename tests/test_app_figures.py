@@ -81,6 +81,19 @@ def test_streams_table_and_phase_table():
     assert list(phases["phase"]) == ["manoeuvring"] and phases.loc[0, "duration_s"] == 10.0
 
 
+def test_streams_table_counts_gaps_within_the_log_span_only():
+    """Issue 34: an ArduPilot magnetometer logged 2.6 s before the first IMU sample had its gap at -2.60 s since
+    the start; a gap reaching into the span starts at the start, one past the end is cut there."""
+    meta = LogMetadata(source="x.bin", start_time_s=4.0, end_time_s=90.0, streams={
+        "mag": StreamInfo("MAG[0]", 850, 10.0, ((1.45, 2.5), (50.0, 0.4))),
+        "baro": StreamInfo("BARO", 860, 10.0, ((3.0, 2.0), (89.0, 5.0)))})
+    table = tables.streams_table(meta).set_index("stream")
+    assert table.loc["mag", "gaps"] == 1 and table.loc["mag", "longest_gap_at_s"] == 50.0
+    assert table.loc["baro", "gaps"] == 2 and table.loc["baro", "longest_gap_s"] == pytest.approx(1.0)
+    assert table.loc["baro", "longest_gap_at_s"] == 4.0
+    assert (table["longest_gap_at_s"].dropna() >= meta.start_time_s).all()
+
+
 def test_segment_figure_marks_segments_and_bounds_points():
     series = _series()
     norms = pd.DataFrame({"gyro_norm_rad_s": series.abs().to_numpy() / 100.0,
