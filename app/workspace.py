@@ -106,6 +106,9 @@ STALE_STAGING_S = 24 * 3600.0
 #: Longest display name [characters].
 MAX_NAME_LENGTH = 80
 
+#: Where a long name may be cut (:func:`shorten`).
+_WORD_SEPARATORS = " _-.\u00b7"
+
 _T = TypeVar("_T")
 #: Device names Windows reserves whatever the extension (a display name may become a download's file name).
 _RESERVED = re.compile(r"(CON|PRN|AUX|NUL|COM[0-9]|LPT[0-9]) *(\..*)?", re.IGNORECASE)
@@ -119,7 +122,7 @@ def sanitize_name(name: str, max_length: int = MAX_NAME_LENGTH) -> str:
     name : str
         The name as uploaded (may hold a path, NUL, control or non-ASCII characters).
     max_length : int
-        Longest result [characters]; a short extension is kept when the name is cut.
+        Longest result [characters]; a name is cut at a word boundary (:func:`shorten`), a short extension kept.
 
     Returns
     -------
@@ -146,10 +149,22 @@ def _fit(name: str, tag: str, max_length: int) -> str:
     else:
         ext = f".{ext}"
     room = max_length - len(tag) - len(ext)
-    short = stem[:room].rstrip(" .") if room > 0 else ""
+    short = shorten(stem, room).rstrip(" .") if room > 0 else ""
     if not short:  # no room for the extension: cut the whole name (its first character is neither " " nor ".")
-        return name[:max(max_length - len(tag), 1)].rstrip(" .") + tag
+        return shorten(name, max(max_length - len(tag), 1)).rstrip(" .") + tag
     return short + tag + ext
+
+
+def shorten(text: str, max_length: int) -> str:
+    """``text`` cut to at most ``max_length`` characters at a word or separator boundary (before a space, ``_``,
+    ``-``, ``.`` or ``·``), the separators the cut leaves at the end dropped; cut mid-word only when the last
+    boundary would keep less than half of ``max_length`` (one long word)."""
+    if len(text) <= max_length:
+        return text
+    boundaries = [k for k in range(1, max_length + 1) if text[k] in _WORD_SEPARATORS]
+    if not boundaries or boundaries[-1] < max_length / 2:
+        return text[:max_length]
+    return text[:boundaries[-1]].rstrip(_WORD_SEPARATORS) or text[:max_length]
 
 
 class NameRejected(ValueError):
@@ -160,12 +175,13 @@ def sanitize_label(name: str, max_length: int = MAX_NAME_LENGTH) -> str:
     """A display-safe name of a calibration or run (Unicode kept: ``·``, ``τ``, ``+``, accents).
 
     NFKC-normalised; control, format, surrogate and private-use characters and Markdown/HTML markup characters
-    become spaces; runs of white space become one space; cut to ``max_length``; stripped. May be empty.
+    become spaces; runs of white space become one space; cut to ``max_length`` at a word boundary (:func:`shorten`);
+    stripped. May be empty.
     """
     text = unicodedata.normalize("NFKC", str(name))
     text = "".join(" " if unicodedata.category(ch)[0] == "C" or ch.isspace() else ch for ch in text)
     text = re.sub(r" +", " ", _MARKUP.sub(" ", text)).strip()
-    return text[:max_length].rstrip()
+    return shorten(text, max_length).rstrip()
 
 
 def canonical_json(settings: dict) -> str:
@@ -228,7 +244,7 @@ def _join_name(log_name: str, parts: list[str], created_utc: str) -> str:
     """``log · parts · HH:MM``, the log name cut so that the whole fits (numbering needs a few characters)."""
     tail = NAME_SEPARATOR.join([*parts, _time_of_day(created_utc)])
     room = MAX_NAME_LENGTH - 6 - len(tail) - len(NAME_SEPARATOR)
-    head = sanitize_label(log_name)[:max(room, 8)].rstrip()
+    head = shorten(sanitize_label(log_name), max(room, 8)).rstrip()
     return sanitize_label(NAME_SEPARATOR.join([head, tail]) if head else tail, MAX_NAME_LENGTH - 6)
 
 

@@ -13,7 +13,7 @@ import pandas as pd
 import pytest
 
 from app import workspace as workspace_module
-from app.workspace import MAX_NAME_LENGTH, NameRejected, Workspace, sanitize_label
+from app.workspace import MAX_NAME_LENGTH, NameRejected, Workspace, sanitize_label, sanitize_name, shorten
 from tests.conftest import REPO_DIR
 
 KINDS = ("logs", "calibrations", "runs")
@@ -79,6 +79,20 @@ def test_default_names_fit_and_stay_distinct(tmp_path, clock):
              for n in range(3)]  # same name in short, same minute
     assert len(first.name) <= MAX_NAME_LENGTH and first.name.endswith("\u00b7 calib auto-\u03c4 0.5 \u00b7 14:03")
     assert names[1:] == [f"{names[0]} (2)", f"{names[0]} (3)"] and all(len(n) <= MAX_NAME_LENGTH for n in names)
+
+
+def test_long_names_are_cut_between_words(tmp_path, clock):
+    """Issue 34: upload names were shortened mid-word (``sample_logging_tagged_and_defau``)."""
+    assert shorten("sample_logging_tagged_and_default_params", 31) == "sample_logging_tagged_and"
+    assert shorten("Flug über Zürich", 12) == "Flug über" and shorten("x" * 30, 10) == "x" * 10
+    assert sanitize_label("my best calibration of the long flight", 24) == "my best calibration of"
+    assert sanitize_name("octo flight sixty one.ulg", max_length=20) == "octo flight.ulg"
+    ws = Workspace(tmp_path / "ws")
+    log = ws.add_log(b"long", "sample_logging_tagged_and_default_params_of_the_long_survey_flight.ulg")
+    run = ws.store_run(log.sha256, {"estimators": ["indirect"], "heading": "mag+sun", "noise": "calibrated",
+                                    "rate_hz": 25.0, "allow_untrusted": True}, *_frames(), {})
+    head = run.name.split(" \u00b7 ")[0]
+    assert log.display_name.startswith(head) and log.display_name[len(head)] in " _-.", (head, log.display_name)
 
 
 def test_identical_settings_are_stored_once_per_log(tmp_path):
