@@ -608,7 +608,10 @@ class Workspace:
                 params = (clean, entry_id) if kind == "logs" else (clean, entry_id, row[0])
                 if db.execute(f"SELECT 1 FROM {kind} WHERE {column} = ? AND {key} != ?{scope}", params).fetchone():
                     raise NameRejected(f"the name \u201c{clean}\u201d is taken")
+                old_name = _log_name(db, entry_id) if kind == "logs" else None
                 db.execute(f"UPDATE {kind} SET {column} = ? WHERE {key} = ?", (clean, entry_id))
+                if old_name is not None:
+                    _rename_default_labels(db, entry_id, old_name, clean)
                 db.execute("COMMIT")
             finally:
                 if db.in_transaction:
@@ -725,6 +728,22 @@ def _distinct_label(db: sqlite3.Connection, kind: str, log_sha256: str, name: st
         number += 1
         candidate = f"{name} ({number})"
     return candidate
+
+
+def _rename_default_labels(db: sqlite3.Connection, log_sha256: str, old_log_name: str, new_log_name: str) -> None:
+    """In the open write transaction: the calibrations and runs of a renamed log that still carry their default
+    name (numbered or not) take the default name with the log's new name; names a user gave stay."""
+    for kind, default_name in (("calibrations", default_calibration_name), ("runs", default_run_name)):
+        key = _KINDS[kind]
+        rows = db.execute(f"SELECT {key}, settings_json, created_utc, name FROM {kind} WHERE log_sha256 = ? "
+                          "ORDER BY rowid", (log_sha256,)).fetchall()
+        for entry_id, text, created, name in rows:
+            settings = json.loads(text)
+            old_default = default_name(old_log_name, settings, created)
+            if name == old_default or re.fullmatch(re.escape(old_default) + r" \(\d+\)", name or ""):
+                new_name = _distinct_label(db, kind, log_sha256, default_name(new_log_name, settings, created),
+                                           exclude=entry_id)
+                db.execute(f"UPDATE {kind} SET name = ? WHERE {key} = ?", (new_name, entry_id))
 
 
 def _migrate(db: sqlite3.Connection) -> None:

@@ -340,9 +340,20 @@ def test_workspace_page_renames_and_deletes(tmp_path, monkeypatch):
     assert any("empty" in error.value for error in at.error)
     assert Workspace(root).entry_name("runs", run.id) == run.name
 
-    # delete the log: nothing happens without the confirmation, then log, calibration and run go
+    # rename the log (issue 34): the entry box and the default run name show the name stored
     choice = f"logs:{log.sha256}"
     at.selectbox(key="ws_entry").set_value(choice).run()
+    at.text_input(key=f"ws_name_{choice}").set_value("ruined flight?.ulg").run()
+    at.button(key="ws_rename").click().run()
+    assert not at.exception and not at.error
+    assert at.text_input(key=f"ws_name_{choice}").value == "ruined flight_.ulg"
+    assert "ruined flight_.ulg" in at.selectbox(key="ws_entry").format_func(choice)
+    assert list(at.dataframe[2].value["name"]) == [Workspace(root).entry_name("runs", run.id)]
+    assert Workspace(root).entry_name("runs", run.id) == run.name.replace("doomed.ulg",
+                                                                         sanitize_label("ruined flight_.ulg"))
+    assert Workspace(root).entry_name("calibrations", calib.id) == "hover test"  # a name given stays
+
+    # delete the log: nothing happens without the confirmation, then log, calibration and run go
     assert at.button(key="ws_delete").disabled  # a browser cannot click it before the confirmation
     assert "1 calibration(s) and 1 run(s)" in at.checkbox(key=f"ws_confirm_{choice}").label
     at.checkbox(key=f"ws_confirm_{choice}").check().run()

@@ -78,7 +78,8 @@ kind, entry_id = choice.split(":", 1)
 name = names[choice]
 
 left, right = st.columns(2)
-new_name = left.text_input("New name", value=name, key=f"ws_name_{choice}", max_chars=200)
+name_key = f"ws_name_{choice}"
+new_name = left.text_input("New name", value=name, key=name_key, max_chars=200)
 if left.button("Rename", key=RENAME_KEY):
     try:
         stored = workspace.rename(kind, entry_id, new_name)
@@ -88,6 +89,7 @@ if left.button("Rename", key=RENAME_KEY):
         st.error("Not renamed: the entry is gone (deleted in another session).")
     else:
         st.session_state[MESSAGE_KEY] = [("success", f"Renamed \u201c{name}\u201d to \u201c{stored}\u201d.")]
+        del st.session_state[name_key]  # the box shows the name stored (sanitised), not the one typed
         st.rerun()
 
 if kind == "logs":
