@@ -139,6 +139,17 @@ def test_calibration_tables_tau_and_window(open_page):
     assert any(caption.value.startswith("tau = ") for caption in at.caption)
 
 
+def test_calibration_window_of_zero_length_blames_the_window_not_the_file(open_page):
+    """Issue 34: a zero-length window said "This file cannot be used"."""
+    at = open_page("views/calibration.py", SHORT_SAMPLE)
+    at.radio(key="calib_mode").set_value("window").run()
+    at.slider(key="calib_window").set_value((20.0, 20.0)).run()
+    assert not at.exception
+    [error] = [error.value for error in at.error]
+    assert "window" in error and "zero length" in error and "longer" in error, error
+    assert "file" not in error
+
+
 def test_estimators_run_compare_and_diagnose(open_page, workspace_dir):
     at = open_page("views/estimators.py", SHORT_SAMPLE)
     at.button[0].click()  # "Run estimators" with the defaults: all three, magnetometer heading, default R

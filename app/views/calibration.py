@@ -59,15 +59,21 @@ def take_box_selection() -> None:
 
 
 # the page shows seconds since the log start; the calibration gets and stores the window on the log clock
-window = None
+window, empty_window = None, False
 if WINDOW_KEY in st.session_state:  # a window of another log, kept in the session, brought inside this one
     kept = tuple(st.session_state[WINDOW_KEY])
-    if figures.clamp_window(kept, span) != kept:
+    empty_here = kept[0] == kept[1] and span[0] <= kept[0] <= span[1]  # said so below, not widened silently
+    if figures.clamp_window(kept, span) != kept and not empty_here:
         st.session_state[WINDOW_KEY] = figures.clamp_window(kept, span)
 if not automatic:
     default = tuple(clock.since_start(candidates[["start_s", "end_s"]].iloc[0])) if len(candidates) else span
     shown_window = st.slider("Window [s since log start]", span[0], span[1], value=default, step=WINDOW_STEP_S,
                              key=WINDOW_KEY, format="%.1f", help="drag a box across the chart below to pick it")
+    empty_window = shown_window[1] <= shown_window[0]
+    if empty_window:
+        st.error(f"The chosen window ({shown_window[0]:.1f} .. {shown_window[1]:.1f} s since the log start) is "
+                 "empty: it has zero length. Choose a longer one: move the slider's ends apart or drag a box "
+                 "across the chart below.")
     window = (clock.start_s + shown_window[0], clock.start_s + shown_window[1])
 shaded = candidates if window is None else pd.DataFrame([("user", *window, "window")], columns=candidates.columns)
 st.plotly_chart(figures.segment_figure(adapters.imu_norms(root, sha256), shaded, time_base=clock),
@@ -76,6 +82,9 @@ if automatic:
     st.dataframe(clock.shift(candidates, ["start_s", "end_s"]), hide_index=True, width="stretch", column_config={
         "start_s": st.column_config.NumberColumn("start [s since start]", format="%.1f"),
         "end_s": st.column_config.NumberColumn("end [s since start]", format="%.1f")})
+
+if empty_window:  # nothing to calibrate on: the chart above stays to pick a window on
+    st.stop()
 
 # ------------------------------------------------------------------ filter settings and calibration
 st.subheader("Filters and noise")
