@@ -8,6 +8,7 @@ import streamlit as st
 from streamlit.runtime.scriptrunner import add_script_run_ctx, get_script_run_ctx
 
 from app import adapters, comparison, figures, runs, session, tables, time_range
+from app.notes import PROBLEM, note_text, run_notes
 from estimators.api import DEFAULT_ESTIMATORS, ESTIMATORS, UNTRUSTED_PREFIX
 from estimators.inputs.records import HEADING_SOURCES
 
@@ -147,14 +148,20 @@ for index, (run_name, run_report) in enumerate(reports.items()):
                               if w.startswith(UNTRUSTED_PREFIX))
     for warning in untrusted:  # a forced run's refused inputs, once for all estimators, never collapsed
         st.error(prefix + warning)
-    for name, facts in run_report.items():
+    for name, facts in sorted(run_report.items(),  # the inconsistent estimators first
+                              key=lambda item: item[1]["details"].get("verdict", {}).get("status") != "inconsistent"):
         show_verdict(f"{prefix}{name}", facts["details"].get("verdict"))
+    run_estimators = tuple(run_report)
+    notes = run_notes(run_report, fixed_wing=log.meta.is_fixed_wing)
+    for note in notes:  # each once, the problems first
+        if note.severity == PROBLEM:
+            st.warning(prefix + note_text(note, run_estimators))
+    expected = [note_text(note, run_estimators) for note in notes if note.severity != PROBLEM]
+    if expected:
+        st.info(f"{prefix}Expected for this log, nothing wrong:\n" + "\n".join(f"- {text}" for text in expected))
+    for name, facts in run_report.items():
         with st.expander(f"{prefix}{name}: used {', '.join(facts['used']) or 'nothing'}; "
                          f"{facts['timings_s'].get('total', float('nan')):.1f} s"):
-            verdict_warning = f"{name}: {facts['details'].get('verdict', {}).get('summary')}"
-            for reason in (*[f"skipped {k}: {v}" for k, v in facts["skipped"].items()], *facts["degradations"],
-                           *(w for w in facts["warnings"] if w != verdict_warning)):
-                st.warning(reason)
             if facts["details"].get("verdict"):
                 st.caption("Consistency of each measurement channel (docs/calibration.md, 'Consistency checks')")
                 st.dataframe(tables.verdict_channels(facts["details"]["verdict"]), hide_index=True,

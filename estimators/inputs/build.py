@@ -64,6 +64,12 @@ from estimators.inputs.sun_events import sun_heading_events
 from ingest.errors import InputError
 from ingest.flightlog import FlightLog
 
+#: Sensor-plan notes that state what the vehicle or the log is, not a problem (the dashboard shows them apart,
+#: app.notes): a sensor the log does not have, a multicopter's unused fixed-wing aids.
+NOT_IN_LOG = "not in the log"
+NOT_FIXED_WING = "not a fixed-wing vehicle (MAV_TYPE)"
+NO_AIRSPEED = "no airspeed: no wind states, no airspeed update"
+MULTICOPTER = "multicopter: no fixed-wing pseudo-measurements"
 #: GPS rows with a worse horizontal accuracy [m] are not used (docs/estimators.md, 'Sensor plan': eph < 10 m); the
 #: origin needs < 5 m.
 GPS_MAX_EPH_M = 10.0
@@ -259,7 +265,7 @@ def _airspeed_events(flight_log: FlightLog, gps: GpsRows | None, fixed_wing: boo
                 notes.parts.append((tas_t[flying], AIRSPEED, tas[flying, None],
                                     np.full((int(flying.sum()), 1), config.noise.airspeed_sigma_m_s ** 2)))
     if airspeed is None:
-        notes.degradations.append("no airspeed: no wind states, no airspeed update")
+        notes.degradations.append(NO_AIRSPEED)
     return airspeed
 
 
@@ -274,8 +280,8 @@ def _pseudo_events(t_start: float, t_end: float, fixed_wing: bool, airspeed, gps
         times = pseudo_t[airborne]
         notes.parts.append((times, SIDESLIP, np.zeros((len(times), 1)), np.full((len(times), 1), sigma ** 2)))
     else:
-        notes.skipped["sideslip"] = "not a fixed-wing vehicle (MAV_TYPE)"
-        notes.degradations.append("multicopter: no fixed-wing pseudo-measurements")
+        notes.skipped["sideslip"] = NOT_FIXED_WING
+        notes.degradations.append(MULTICOPTER)
     if gps is None:
         times = _pseudo_times(t_start, t_end, config.timing.pseudo_rate_hz)
         notes.parts.append((times, ZERO_VELOCITY, np.zeros((len(times), 3)),
@@ -344,7 +350,7 @@ def _sensor_rows(flight_log: FlightLog, stream: str, columns: tuple[str, ...], s
     """``(sample_time_s, values)`` of the finite, new samples of a stream, or None (reason in ``skipped``)."""
     name = {"baro": "baro", "mag": "mag", "airspeed": "airspeed"}[stream]
     if not flight_log.has(stream):
-        skipped[name] = "not in the log"
+        skipped[name] = NOT_IN_LOG
         return None
     frame = flight_log[stream]
     if any(c not in frame.columns for c in columns):
@@ -392,7 +398,7 @@ def gps_measurement_time_s(frame: pd.DataFrame, delay_s: float, delay_source: st
 
 def _gps_rows(flight_log: FlightLog, delay_s: float, delay_source: str, skipped: dict[str, str]) -> GpsRows | None:
     if not flight_log.has("gps"):
-        skipped["gps_pos"] = skipped["gps_vel"] = "not in the log"
+        skipped["gps_pos"] = skipped["gps_vel"] = NOT_IN_LOG
         return None
     frame = flight_log["gps"]
     time_s, time_rule = gps_measurement_time_s(frame, delay_s, delay_source)

@@ -103,6 +103,8 @@ FUSED_KINDS = (MAG, SUN, GPS_POS, GPS_VEL)
 #: Event kinds the replay inputs may carry that this estimator does not use (fixed-wing sideslip and no-GPS
 #: zero-velocity pseudo-measurements of the full-state filters).
 UNUSED_SENSORS = ("sideslip", "zero_velocity")
+#: Why they are skipped (a property of the estimator, not of the log: app.notes shows it as expected).
+NOT_IN_THREE_STAGE = "not part of the three-stage estimator"
 
 # process-noise densities of the model-error random walks (the gyro enters through G; see the state tables)
 ROLL_PITCH_RW_RAD_SQRT_S = math.radians(0.3)  # residual gyro bias / scale / cross-axis error
@@ -412,7 +414,7 @@ def run(flight_log: FlightLog, inputs: ReplayInputs, config: EstimatorConfig, *,
                                     else list(config.calibrated.accel_bias_m_s2)),
         **replay_details(inputs),
     }
-    unused = {name: "not part of the three-stage estimator" for name in UNUSED_SENSORS if name in plan.used}
+    unused = {name: NOT_IN_THREE_STAGE for name in UNUSED_SENSORS if name in plan.used}
     report = kernel_report(NAME, inputs, counters, diverged="a stage", warnings=warnings, details=details,
                            used=tuple(s for s in plan.used if s not in unused), skipped={**plan.skipped, **unused},
                            timings_s={"schedule": kernel_started - schedule_started, "kernel": kernel_s,
