@@ -37,6 +37,7 @@ from calib.segments import (
     user_segment,
 )
 from calib.tau import TauSelection, user_tau
+from estimators.api import DEFAULT_ESTIMATORS
 from estimators.environment import geodetic_to_ned
 from estimators.evaluation import Evaluation, position_origin
 from estimators.sun.prediction import sun_vector_table
@@ -269,10 +270,23 @@ def calibration_files(root: str, sha256: str, cal: Calibration) -> dict[str, str
 @dataclasses.dataclass(frozen=True)
 class IdentificationJob:
     """A noise identification running (or done) in the background: its future (the calibration with the
-    identified noise) and when it started (``time.monotonic()`` [s])."""
+    identified noise), when it started (``time.monotonic()`` [s]) and its replays so far (estimator -> (replays
+    done, budget)), filled in by the identification's threads."""
 
     future: Future
     started_s: float
+    estimators: tuple[str, ...] = DEFAULT_ESTIMATORS
+    replays: dict[str, tuple[int, int]] = dataclasses.field(default_factory=dict)
+
+    def progress(self) -> tuple[float, str]:
+        """Share of the replay budgets spent (0..1) and what is being done: ``three_stage 12/40 replays, ...``."""
+        if not self.replays:
+            return 0.0, "Preparing the replays (in-flight bias, replay inputs) ..."
+        shares = [min(done / budget, 1.0) for done, budget in (self.replays.get(name, (0, 1))
+                                                                 for name in self.estimators)]
+        text = ", ".join(f"{name} {self.replays[name][0]}/{self.replays[name][1]} replays" if name in self.replays
+                         else f"{name} waiting" for name in self.estimators)
+        return sum(shares) / len(shares), f"Identifying the noise: {text}"
 
 
 @st.cache_resource(show_spinner=False)
@@ -289,8 +303,14 @@ def identification(root: str, sha256: str, cal: Calibration, cal_digest: str) ->
     key = (root, sha256, cal_digest)
     job = jobs.get(key)
     if job is None or (job.future.done() and job.future.exception() is not None):
-        job = IdentificationJob(pool.submit(identify_noise, stored_log(root, sha256), cal), time.monotonic())
-        jobs[key] = job
+        replays: dict[str, tuple[int, int]] = {}
+
+        def note(estimator: str, done: int, budget: int) -> None:  # estimators.tuning.TuneProgress
+            replays[estimator] = (done, budget)
+
+        started_s = time.monotonic()
+        future = pool.submit(identify_noise, stored_log(root, sha256), cal, DEFAULT_ESTIMATORS, progress=note)
+        job = jobs[key] = IdentificationJob(future, started_s, DEFAULT_ESTIMATORS, replays)
     return job
 
 

@@ -12,7 +12,7 @@ from calib.segments import Segment
 from calib.tau import DEFAULT_TAU, TauSelection, choose_tau
 from estimators.api import DEFAULT_ESTIMATORS
 from estimators.calibration_replay import tau_replay, with_filter_figures
-from estimators.tuning import DEFAULT_BUDGET, tune_calibration
+from estimators.tuning import DEFAULT_BUDGET, TuneProgress, tune_calibration
 from estimators.warmup import prepare_compile
 from ingest.flightlog import FlightLog
 
@@ -73,7 +73,8 @@ def choose_tau_by_replay(log: FlightLog, cal: Calibration, method: str = "likeli
 
 
 def identify_noise(log: FlightLog, cal: Calibration, estimators: str | Sequence[str] = DEFAULT_ESTIMATORS, *,
-                   budget: int = DEFAULT_BUDGET) -> Calibration:
+                   budget: int = DEFAULT_BUDGET, progress: TuneProgress | None = None) -> Calibration:
     """``cal`` completed with its filter figures (the in-flight bias, unless it has one) and the noise identified per
-    estimator from the flight's innovations (docs/calibration.md, 'Noise identification')."""
-    return tune_calibration(log, with_filter_figures(log, cal), estimators, budget=budget)
+    estimator from the flight's innovations (docs/calibration.md, 'Noise identification'); ``progress`` is told
+    after every replay (:data:`estimators.tuning.TuneProgress`)."""
+    return tune_calibration(log, with_filter_figures(log, cal), estimators, budget=budget, progress=progress)

@@ -27,10 +27,13 @@ WINDOW_STEP_S = 0.1
 
 
 @st.fragment(run_every=2.0)
-def wait_for(future) -> None:
-    """Rerun the page when ``future`` is done (polled every 2 s, only this fragment meanwhile)."""
-    if future.done():
+def wait_for(job: adapters.IdentificationJob) -> None:
+    """The identification's progress, redrawn every 2 s (only this fragment meanwhile); the page reruns when it is
+    done."""
+    if job.future.done():
         st.rerun()
+    fraction, text = job.progress()
+    st.progress(fraction, text=f"{text} (running for {time.monotonic() - job.started_s:.0f} s)")
 
 
 log = session.require_log()
@@ -202,9 +205,9 @@ if st.session_state[TUNE_WANTED_KEY]:
     digest = hashlib.sha256(calibration_text(current).encode()).hexdigest()
     job = adapters.identification(root, sha256, current, digest)
     if not job.future.done():
-        st.info(f"Identifying the noise from the flight's innovations: running for "
-                f"{time.monotonic() - job.started_s:.0f} s (it goes on if you leave this page; come back for it).")
-        wait_for(job.future)
+        st.info("Identifying the noise from the flight's innovations: it goes on if you leave this page; come back "
+                "for it.")
+        wait_for(job)
     elif job.future.exception() is not None:
         with session.input_errors():
             job.future.result()
