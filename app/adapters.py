@@ -15,6 +15,7 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import time
+from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
 
 import numpy as np
@@ -234,12 +235,30 @@ def allan(root: str, sha256: str, window: tuple[float, float] | None, fir: FirRo
     return allan_curves(stored_log(root, sha256), calibration(root, sha256, window, fir, noise))
 
 
-@st.cache_data(max_entries=8, show_spinner="Replaying the three-stage estimator for every candidate tau ...")
+#: Most automatic tau selections kept (:func:`auto_tau`).
+MAX_TAU_SELECTIONS = 8
+
+
+@st.cache_resource(show_spinner=False)
+def _tau_selections() -> dict[tuple, TauSelection]:
+    """The server's automatic tau selections by their settings, oldest first (kept outside ``st.cache_data``: its
+    replay of elements refuses the progress bar drawn while one is computed)."""
+    return {}
+
+
 def auto_tau(root: str, sha256: str, window: tuple[float, float] | None, fir: FirRows, noise: str,
-             method: str) -> TauSelection:
+             method: str, progress: Callable[[int], None] | None = None) -> TauSelection:
     """Tau chosen by replaying the three-stage estimator (:func:`workflows.calibration.choose_tau_by_replay`, as the
-    ``calibrate`` command does), with the evidence curves."""
-    return choose_tau_by_replay(stored_log(root, sha256), calibration(root, sha256, window, fir, noise), method)
+    ``calibrate`` command does), with the evidence curves; ``progress`` is told the replays made while it is
+    computed (the last :data:`MAX_TAU_SELECTIONS` are kept)."""
+    selections = _tau_selections()
+    key = (root, sha256, window, fir, noise, method)
+    if key not in selections:
+        selections[key] = choose_tau_by_replay(stored_log(root, sha256), calibration(root, sha256, window, fir, noise),
+                                               method, progress)
+        for oldest in list(selections)[:-MAX_TAU_SELECTIONS]:
+            selections.pop(oldest, None)
+    return selections[key]
 
 
 def with_tau_value(cal: Calibration, tau: float | TauSelection) -> Calibration:
