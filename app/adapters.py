@@ -15,6 +15,7 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import time
+from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
 
 import numpy as np
@@ -37,6 +38,7 @@ from calib.segments import (
     user_segment,
 )
 from calib.tau import TauSelection, user_tau
+from estimators.api import DEFAULT_ESTIMATORS
 from estimators.environment import geodetic_to_ned
 from estimators.evaluation import Evaluation, position_origin
 from estimators.sun.prediction import sun_vector_table
@@ -233,12 +235,30 @@ def allan(root: str, sha256: str, window: tuple[float, float] | None, fir: FirRo
     return allan_curves(stored_log(root, sha256), calibration(root, sha256, window, fir, noise))
 
 
-@st.cache_data(max_entries=8, show_spinner="Replaying the three-stage estimator for every candidate tau ...")
+#: Most automatic tau selections kept (:func:`auto_tau`).
+MAX_TAU_SELECTIONS = 8
+
+
+@st.cache_resource(show_spinner=False)
+def _tau_selections() -> dict[tuple, TauSelection]:
+    """The server's automatic tau selections by their settings, oldest first (kept outside ``st.cache_data``: its
+    replay of elements refuses the progress bar drawn while one is computed)."""
+    return {}
+
+
 def auto_tau(root: str, sha256: str, window: tuple[float, float] | None, fir: FirRows, noise: str,
-             method: str) -> TauSelection:
+             method: str, progress: Callable[[int], None] | None = None) -> TauSelection:
     """Tau chosen by replaying the three-stage estimator (:func:`workflows.calibration.choose_tau_by_replay`, as the
-    ``calibrate`` command does), with the evidence curves."""
-    return choose_tau_by_replay(stored_log(root, sha256), calibration(root, sha256, window, fir, noise), method)
+    ``calibrate`` command does), with the evidence curves; ``progress`` is told the replays made while it is
+    computed (the last :data:`MAX_TAU_SELECTIONS` are kept)."""
+    selections = _tau_selections()
+    key = (root, sha256, window, fir, noise, method)
+    if key not in selections:
+        selections[key] = choose_tau_by_replay(stored_log(root, sha256), calibration(root, sha256, window, fir, noise),
+                                               method, progress)
+        for oldest in list(selections)[:-MAX_TAU_SELECTIONS]:
+            selections.pop(oldest, None)
+    return selections[key]
 
 
 def with_tau_value(cal: Calibration, tau: float | TauSelection) -> Calibration:
@@ -269,10 +289,23 @@ def calibration_files(root: str, sha256: str, cal: Calibration) -> dict[str, str
 @dataclasses.dataclass(frozen=True)
 class IdentificationJob:
     """A noise identification running (or done) in the background: its future (the calibration with the
-    identified noise) and when it started (``time.monotonic()`` [s])."""
+    identified noise), when it started (``time.monotonic()`` [s]) and its replays so far (estimator -> (replays
+    done, budget)), filled in by the identification's threads."""
 
     future: Future
     started_s: float
+    estimators: tuple[str, ...] = DEFAULT_ESTIMATORS
+    replays: dict[str, tuple[int, int]] = dataclasses.field(default_factory=dict)
+
+    def progress(self) -> tuple[float, str]:
+        """Share of the replay budgets spent (0..1) and what is being done: ``three_stage 12/40 replays, ...``."""
+        if not self.replays:
+            return 0.0, "Preparing the replays (in-flight bias, replay inputs) ..."
+        shares = [min(done / budget, 1.0) for done, budget in (self.replays.get(name, (0, 1))
+                                                                 for name in self.estimators)]
+        text = ", ".join(f"{name} {self.replays[name][0]}/{self.replays[name][1]} replays" if name in self.replays
+                         else f"{name} waiting" for name in self.estimators)
+        return sum(shares) / len(shares), f"Identifying the noise: {text}"
 
 
 @st.cache_resource(show_spinner=False)
@@ -289,8 +322,14 @@ def identification(root: str, sha256: str, cal: Calibration, cal_digest: str) ->
     key = (root, sha256, cal_digest)
     job = jobs.get(key)
     if job is None or (job.future.done() and job.future.exception() is not None):
-        job = IdentificationJob(pool.submit(identify_noise, stored_log(root, sha256), cal), time.monotonic())
-        jobs[key] = job
+        replays: dict[str, tuple[int, int]] = {}
+
+        def note(estimator: str, done: int, budget: int) -> None:  # estimators.tuning.TuneProgress
+            replays[estimator] = (done, budget)
+
+        started_s = time.monotonic()
+        future = pool.submit(identify_noise, stored_log(root, sha256), cal, DEFAULT_ESTIMATORS, progress=note)
+        job = jobs[key] = IdentificationJob(future, started_s, DEFAULT_ESTIMATORS, replays)
     return job
 
 

@@ -188,6 +188,16 @@ def runs_table(runs: pd.DataFrame, entries: Sequence) -> pd.DataFrame:
     })
 
 
+def run_details(runs: pd.DataFrame, entries: Sequence, names: dict[str, str]) -> pd.DataFrame:
+    """:func:`runs_table` indexed by run id with the run's short name (``names``: run id -> name) first and the
+    noise source spelled out (datasheet, calibrated, or the saved calibration's full id)."""
+    table = runs_table(runs, entries).set_index("run", drop=False)
+    table["R"] = [{"default": "datasheet", "calibrated": "calibrated (automatic)"}.get(r, f"calibration {r}")
+                  for r in table["R"]]
+    return table.assign(name=[names[run_id] for run_id in table.index])[
+        ["name", "estimators", "heading aid", "R", "created (UTC)", "run"]]
+
+
 def flat_columns(table: pd.DataFrame) -> pd.DataFrame:
     """``table`` with MultiIndex columns joined into single labels (``"Gyroscope (deg/s) p"``, powers as
     superscripts: ``"Accelerometer (m/s²) x"``) for display."""

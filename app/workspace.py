@@ -105,6 +105,8 @@ BUSY_TIMEOUT_S = 30.0
 STALE_STAGING_S = 24 * 3600.0
 #: Longest display name [characters].
 MAX_NAME_LENGTH = 80
+#: How many estimators a run has by default (estimators.api.DEFAULT_ESTIMATORS): fewer are named in a run's name.
+_DEFAULT_RUN_ESTIMATORS = 3
 
 #: Where a long name may be cut (:func:`shorten`).
 _WORD_SEPARATORS = " _-.\u00b7"
@@ -220,24 +222,30 @@ def default_calibration_name(log_name: str, settings: dict, created_utc: str) ->
     return _join_name(log_name, [summary], created_utc)
 
 
+def noise_source(noise) -> str:
+    """The noise source a run's ``noise`` setting names, short: ``datasheet``, ``calibrated`` (automatic
+    calibration of the log) or ``calib 3f2a1b`` (a saved calibration, its id cut to 6 characters)."""
+    if noise in (None, "", "default"):
+        return "datasheet"
+    return "calibrated" if noise == "calibrated" else f"calib {str(noise)[:6]}"
+
+
 def default_run_name(log_name: str, settings: dict, created_utc: str) -> str:
-    """``paper.ulg · 3 estimators · mag+sun · calibrated · 14:05`` (rate and untrusted replay when set)."""
-    estimators = list(settings.get("estimators", ()))
-    parts = [estimators[0] if len(estimators) == 1 else f"{len(estimators)} estimators"] if estimators else []
-    if settings.get("heading"):
+    """``paper · calibrated · 14:05``: the log (without extension), the noise source and the time; a heading other
+    than the magnetometer, fewer estimators than the default three, a rate other than 50 Hz and an untrusted replay
+    are added when set (``paper · calib 3f2a1b · mag+sun · indirect · 25 Hz · untrusted · 14:05``)."""
+    parts = [noise_source(settings.get("noise"))]
+    if settings.get("heading") not in (None, "", "mag"):
         parts.append(str(settings["heading"]))
-    noise = settings.get("noise")
-    if noise == "default":
-        parts.append("default R")
-    elif noise == "calibrated":
-        parts.append("calibrated")
-    elif noise:
-        parts.append(f"calib {str(noise)[:6]}")
+    estimators = list(settings.get("estimators", ()))
+    if 0 < len(estimators) < _DEFAULT_RUN_ESTIMATORS:
+        parts.append(", ".join(estimators) if len(estimators) == 1 else f"{len(estimators)} estimators")
     if settings.get("rate_hz") not in (None, 50, 50.0):
         parts.append(f"{_number(settings['rate_hz'], 3)} Hz")
     if settings.get("allow_untrusted"):
         parts.append("untrusted")
-    return _join_name(log_name, parts or ["run"], created_utc)
+    stem, dot, _ = log_name.rpartition(".")
+    return _join_name(stem if dot and stem else log_name, parts, created_utc)
 
 
 def _join_name(log_name: str, parts: list[str], created_utc: str) -> str:

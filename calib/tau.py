@@ -110,7 +110,11 @@ def mean_nis(innovations: Innovations) -> float:
     return float(np.mean(nu**2 / s))
 
 
-def choose_tau(replay: Callable[[float], Innovations], method: str = "likelihood", grid_points: int = 13,
+#: Points of the display grid of :func:`choose_tau` (replayed first, side by side).
+TAU_GRID_POINTS = 13
+
+
+def choose_tau(replay: Callable[[float], Innovations], method: str = "likelihood", grid_points: int = TAU_GRID_POINTS,
                xatol: float = 0.01) -> TauSelection:
     """Choose tau by replaying the filter (``replay(tau)``) and maximising the likelihood or matching the NIS.
 

@@ -24,7 +24,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
@@ -153,13 +153,17 @@ class _Candidate:
         return self.log_likelihood > other.log_likelihood
 
 
+#: ``progress(estimator, replays_done, budget)``: called after every replay of an identification (from its thread).
+TuneProgress = Callable[[str, int, int], None]
+
+
 class _Identification:
     """One estimator's identification problem on one log: the start, the replay of a candidate, the trust checks
     and the replay budget (see the module docstring)."""
 
     def __init__(self, log: FlightLog, cal: Calibration, estimator: str, budget: int, heading: str,
-                 sun_observations):
-        self.log, self.estimator, self.budget = log, estimator, budget
+                 sun_observations, progress: TuneProgress | None = None):
+        self.log, self.estimator, self.budget, self.progress = log, estimator, budget, progress
         self.heading, self.sun_observations = heading, sun_observations
         self.run_function = estimator_function(estimator)
         self.base_figures = calibration_figures(cal)
@@ -194,8 +198,11 @@ class _Identification:
         config = config_from_figures(self.figures_of(values))
         inputs = build_replay_inputs(self.log, config, rate_hz=TUNE_OUTPUT_RATE_HZ, heading=self.heading,
                                      sun_observations=self.sun_observations)
+        run = self.run_function(self.log, inputs, config)
         self.spent += 1
-        return self.run_function(self.log, inputs, config)
+        if self.progress is not None:
+            self.progress(self.estimator, self.spent, self.budget)
+        return run
 
     def _scored(self, values: dict[str, float], run: EstimatorRun, *, judged: bool = True) -> _Candidate:
         """``run`` of ``values`` scored (the start replay is not ``judged``: it sets the limits)."""
@@ -282,7 +289,7 @@ def _pattern_search(problem: _Identification, best: _Candidate) -> _Candidate:
 
 
 def tune_estimator(log: FlightLog, cal: Calibration, estimator: str, *, budget: int = DEFAULT_BUDGET,
-                   heading: str = "mag", sun_observations=None) -> TuneResult:
+                   heading: str = "mag", sun_observations=None, progress: TuneProgress | None = None) -> TuneResult:
     """Identify the noise figures of one estimator on ``log``, starting from ``cal``'s (see the module docstring).
 
     Parameters
@@ -297,9 +304,11 @@ def tune_estimator(log: FlightLog, cal: Calibration, estimator: str, *, budget: 
         Replays to spend (>= 2).
     heading, sun_observations
         As :func:`estimators.api.run_estimators`.
+    progress : TuneProgress, optional
+        Told after every replay (the search may stop before the budget is spent).
     """
     started = time.perf_counter()
-    problem = _Identification(log, cal, estimator, budget, heading, sun_observations)
+    problem = _Identification(log, cal, estimator, budget, heading, sun_observations, progress)
     best = _pattern_search(problem, _match_covariances(problem, problem.first))
     bounds = {k.name: (k.identification.lower, k.identification.upper) for k in problem.knobs}
     for name, (lower, upper) in bounds.items():
@@ -314,12 +323,13 @@ def tune_estimator(log: FlightLog, cal: Calibration, estimator: str, *, budget: 
 
 def tune_calibration(log: FlightLog, cal: Calibration, estimators: str | Sequence[str] = DEFAULT_ESTIMATORS, *,
                      budget: int = DEFAULT_BUDGET, heading: str = "mag", sun_observations=None,
-                     threads: int = 2) -> Calibration:
-    """``cal`` with ``tuning`` filled for every estimator (identified concurrently in ``threads`` threads)."""
+                     threads: int = 2, progress: TuneProgress | None = None) -> Calibration:
+    """``cal`` with ``tuning`` filled for every estimator (identified concurrently in ``threads`` threads;
+    ``progress`` as :func:`tune_estimator`)."""
     names = parse_estimator_names(estimators)
     with ThreadPoolExecutor(max_workers=max(1, threads)) as pool:
         futures = {name: pool.submit(tune_estimator, log, cal, name, budget=budget, heading=heading,
-                                     sun_observations=sun_observations) for name in names}
+                                     sun_observations=sun_observations, progress=progress) for name in names}
         results = {name: future.result() for name, future in futures.items()}
     return dataclasses.replace(cal, tuning={**cal.tuning, **results})
 

@@ -209,6 +209,9 @@ def test_map_page_without_and_with_a_run(open_map, tmp_path):
     at.run()
     assert not at.exception and not at.error
     assert at.selectbox(key="map_run").value == run_id
+    run = at.selectbox(key="map_run")  # named short; the settings on hover
+    assert run.options == [Workspace(tmp_path).entry_name("runs", run_id)] and "heading aid" not in run.options[0]
+    assert "estimators: three_stage, full_state_direct; heading aid: " in run.help, run.help
     [world, ned] = _charts(at)
     lines = [trace["name"] for trace in world["data"] if trace["mode"] == "lines"]
     assert lines == ["three_stage", "full_state_direct", "truth", "GPS"]

@@ -215,5 +215,8 @@ def test_identification_survives_leaving_the_page(open_page):
     assert not at.exception and at.toggle(key="calib_tune").value
     assert [job for key, job in jobs.items() if key[1] == sha256] == started  # found again, not restarted
     started[0].future.result(timeout=TIMEOUT_S)
+    fraction, text = started[0].progress()  # every estimator's replays were counted
+    assert 0.0 < fraction <= 1.0 and set(started[0].replays) == set(started[0].estimators), started[0].replays
+    assert all(f"{name} {done}/{budget} replays" in text for name, (done, budget) in started[0].replays.items())
     at.run()
     assert any(frame.value.columns[0] == "estimator" and "meaning" in frame.value.columns for frame in at.dataframe)

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import re
 from pathlib import Path
 
 import numpy as np
@@ -230,6 +231,14 @@ def test_estimators_page_compares_two_stored_runs(tmp_path: Path, monkeypatch):
 
     at.multiselect(key="est_runs").set_value([default_run, calibrated_run]).run()
     assert not at.exception and not at.error
+    stem = SHORT_SAMPLE.stem.replace("_", " ")  # the log, the noise source, fewer estimators than 3, the time
+    assert re.fullmatch(rf"{stem} · datasheet · 2 estimators · \d\d:\d\d", names[default_run]), names
+    assert re.fullmatch(rf"{stem} · calibrated · 2 estimators · \d\d:\d\d", names[calibrated_run]), names
+    assert at.multiselect(key="est_runs").options == [names[calibrated_run], names[default_run]]
+    [details] = [frame.value for frame in at.dataframe if "heading aid" in frame.value.columns]
+    assert list(details["name"]) == [names[default_run], names[calibrated_run]]  # the settings, in the expander
+    assert list(details["R"]) == ["datasheet", "calibrated (automatic)"]
+    assert set(details["estimators"]) == {", ".join(ESTIMATORS)}
     assert at.selectbox(key="est_baseline").value == default_run
     [wide] = [table.value for table in at.table if "Height (m)" in table.value.columns]
     assert len(wide) == 4  # two runs x two estimators

@@ -15,9 +15,11 @@ from streamlit.testing.v1 import AppTest
 
 from app import comparison, figures, samples, session, tables
 from calib.allan import allan_deviation, allan_figures
-from calib.tau import TauSelection
+from calib.tau import TAU_GRID_POINTS, TauSelection
 from estimators.consistency import MIN_UPDATES, NIS_WARNING_RANGE, channel_consistency
+from ingest.log_formats import load_flight_log
 from tests.conftest import REPO_DIR
+from workflows.calibration import choose_tau_by_replay, measure_noise
 
 BAND = (0.98, 1.02)
 
@@ -208,3 +210,17 @@ def test_table4_headings_render_powers():
     table = pd.DataFrame([[1.0, 2.0]], columns=pd.MultiIndex.from_tuples([("Accelerometer (m/s^2)", "x"),
                                                                           ("Gyroscope (deg/s)", "p")]))
     assert list(tables.flat_columns(table).columns) == ["Accelerometer (m/s²) x", "Gyroscope (deg/s) p"]
+
+
+def test_auto_tau_tells_its_replays_and_the_page_clears_its_bar(workspace_dir, monkeypatch):
+    """Issue 33 (5): the automatic tau's replays are counted one by one (the grid's, then the search's); the page's
+    bar is gone once tau is chosen."""
+    log = load_flight_log(samples.SAMPLE_DIR / "failed_cell.ulg")
+    told = []
+    choose_tau_by_replay(log, measure_noise(log), progress=told.append)
+    assert sorted(told) == list(range(1, len(told) + 1)) and len(told) > TAU_GRID_POINTS
+    at = _calibration_page(workspace_dir, monkeypatch, samples.SAMPLE_DIR / "failed_cell.ulg")
+    at.segmented_control(key="calib_section").set_value("R matrices and tau").run()
+    at.radio(key="calib_tau_mode").set_value("likelihood").run()
+    assert not at.exception and at.number_input[0].disabled
+    assert not at.get("progress")

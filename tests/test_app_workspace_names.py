@@ -14,6 +14,7 @@ import pytest
 
 from app import workspace as workspace_module
 from app.workspace import MAX_NAME_LENGTH, NameRejected, Workspace, sanitize_label, sanitize_name, shorten
+from estimators.api import DEFAULT_ESTIMATORS
 from tests.conftest import REPO_DIR
 
 KINDS = ("logs", "calibrations", "runs")
@@ -57,14 +58,14 @@ def test_default_names_say_log_settings_and_time(tmp_path, clock):
     calib = ws.store_calibration(log.sha256, CALIB, "{}")
     run = ws.store_run(log.sha256, {**RUN, "noise": calib.id}, *_frames(), {})
     assert calib.created and calib.name == "paper.ulg \u00b7 calib auto-\u03c4 0.27 \u00b7 14:03"
-    assert run.name == f"paper.ulg \u00b7 3 estimators \u00b7 mag+sun \u00b7 calib {calib.id[:6]} \u00b7 14:05"
+    assert run.name == f"paper \u00b7 calib {calib.id[:6]} \u00b7 mag+sun \u00b7 14:05"  # log, noise, time
     assert Workspace(tmp_path / "ws").entry_name("calibrations", calib.id) == calib.name  # stored in the catalog
     runs = ws.list_runs(log.sha256)
     assert list(runs["name"]) == [run.name] and "name" in ws.list_calibrations().columns
     one = ws.store_run(log.sha256, {"estimators": ["indirect"], "heading": "mag", "noise": "default",
                                     "rate_hz": 25.0, "allow_untrusted": True}, *_frames(), {})
-    assert one.name == ("paper.ulg \u00b7 indirect \u00b7 mag \u00b7 default R \u00b7 25 Hz \u00b7 untrusted "
-                        "\u00b7 15:00")
+    assert one.name == "paper \u00b7 datasheet \u00b7 indirect \u00b7 25 Hz \u00b7 untrusted \u00b7 15:00"
+    assert len(DEFAULT_ESTIMATORS) == workspace_module._DEFAULT_RUN_ESTIMATORS
     manual = ws.store_calibration(log.sha256, {**CALIB, "tau": 1.0, "tau_method": "user", "window_s": [12.5, 40],
                                                "noise": "eta"}, "{}")
     assert manual.name == "paper.ulg \u00b7 calib \u03c4 1 12.5\u201340 s eta \u00b7 15:00"
@@ -291,12 +292,12 @@ def test_a_catalog_from_before_the_names_is_migrated(tmp_path):
     assert calibs["c1"] == "paper.ulg \u00b7 calib auto-\u03c4 0.27 \u00b7 14:03"
     assert calibs["c2"] == calibs["c1"] + " (2)"
     assert list(ws.list_runs()["name"]) == [
-        "paper.ulg \u00b7 3 estimators \u00b7 mag+sun \u00b7 calibrated \u00b7 14:05"]
+        "paper \u00b7 calibrated \u00b7 mag+sun \u00b7 14:05"]
     assert _assert_clean(root)["calibrations"] == {"c1", "c2"}  # nothing lost
     assert ws.rename("calibrations", "c2", "second") == "second"
     assert ws.add_calibration(sha, CALIB, "{}") == "c2"  # the old rows take part in the dedupe (newest first)
     new = ws.store_run(sha, {**RUN, "heading": "mag"}, *_frames(), {})
-    assert new.created and "mag" in new.name
+    assert new.created and new.name.startswith("paper \u00b7 calibrated \u00b7 ") and "mag" not in new.name
     assert Workspace(root).list_calibrations().set_index("calib_id")["name"]["c2"] == "second"  # reopen: kept
     with sqlite3.connect(root / "catalog.sqlite") as db:
         assert [row[1] for row in db.execute("PRAGMA table_info(runs)")][-1] == "name"

@@ -156,7 +156,10 @@ def test_tuned_noise_brings_the_replay_nis_closer_to_one(log, ground_cal):
     the covariance-matching steps). On the channels whose noise is identified (barometer, airspeed,
     magnetometer) the mean NIS moves towards its expected value 1. (The calibrated R alone no longer does: a
     measured figure is root-sum-squared with the default's model error, so it never sets the noise below it.)"""
-    result = tune_estimator(log, ground_cal, "full_state_direct", budget=4)
+    told = []  # the progress: one call per replay, counting up to the replays made
+    result = tune_estimator(log, ground_cal, "full_state_direct", budget=4,
+                            progress=lambda *replays: told.append(replays))
+    assert told == [("full_state_direct", k, 4) for k in range(1, result.n_replays + 1)] and result.n_replays >= 2
     assert result.log_likelihood_trace[-1] > result.log_likelihood_trace[0]
     channels = [("baro", "alt"), ("airspeed", "tas"), ("mag", "x"), ("mag", "y"), ("mag", "z")]
     nis = {}

@@ -558,3 +558,39 @@ def test_compare_logs_refuses_a_verdict_across_references_in_a_browser(page, rea
     assert any("(other reference)" in cell for cell in cells), cells
     assert not any("▼" in cell or "▲" in cell for cell in cells), cells
     _screenshot(page, SHOTS_DIR / "d_compare_logs_across_references")
+
+
+ISSUE33_DIR = Path("issue33")
+#: Top [px] of every element of the main area that the selector finds, in page order.
+TOPS_JS = """selector => [...document.querySelectorAll('[data-testid="stMain"] ' + selector)]
+    .map(element => element.getBoundingClientRect().top + window.scrollY)"""
+#: Every alert box of the main area in page order: its top [px] and text.
+ALERTS_JS = """() => [...document.querySelectorAll('[data-testid="stMain"] [data-testid="stAlert"]')]
+    .map(element => ({top: element.getBoundingClientRect().top + window.scrollY, text: element.innerText}))"""
+
+
+def test_two_runs_of_a_real_log_read_at_a_glance_in_a_browser(page, real_logs_dir):
+    """Issue 33 (4): the octocopter's default and calibrated runs: short run names, the RMS table first, then one
+    verdict element per estimator per run (no box per channel), then the charts."""
+    _add_log(page, real_logs_dir / OCTOCOPTER)
+    _ensure_run(page, OCTOCOPTER)
+    page.get_by_text("calibrated R (automatic calibration of this log)").click()
+    page.get_by_role("button", name="Run estimators").click()
+    page.get_by_text("Baseline run").wait_for(timeout=RUN_MS)  # the calibrated run is added to the shown runs
+    page.get_by_role("heading", name="RMS errors (paper Table 2 layout)").wait_for(timeout=RUN_MS)
+    _settle(page)
+    _screenshot(page, ISSUE33_DIR / "after_estimators_two_runs")
+    chosen = page.locator("[data-testid='stMultiSelect']").filter(has_text="Runs").locator(
+        "[data-baseweb='tag']").all_inner_texts()
+    assert len(chosen) == 2, chosen
+    for name in chosen:  # log, noise source and time only: no estimator list, heading or time stamp
+        assert re.fullmatch(r"px4 1\.14 octo flight 61 · (datasheet|calibrated) · \d\d:\d\d", name), chosen
+    table = page.evaluate(TOPS_JS, "[data-testid='stTable']")
+    alerts = page.evaluate(ALERTS_JS)
+    verdicts = [alert for alert in alerts if "innovations:" in alert["text"]]
+    charts = page.evaluate(TOPS_JS, ".js-plotly-plot")
+    assert table and charts, (table, charts)
+    assert len(verdicts) == 2 * len(ESTIMATORS), [alert["text"] for alert in alerts]
+    assert table[0] < verdicts[0]["top"] and verdicts[-1]["top"] < charts[0], (table, verdicts, charts)
+    between = [alert["text"] for alert in alerts if table[0] < alert["top"] < charts[0]]
+    assert len(between) == len(verdicts), between  # no box per channel, nothing else before the charts

@@ -4,15 +4,16 @@ identified per estimator, in the order ``solarnav calibrate``, the Calibration p
 
 from __future__ import annotations
 
+import itertools
 from collections.abc import Callable, Sequence
 
 from calib.bias import local_gravity
 from calib.calibration import Calibration, FirSettings, calibrate, with_tau
 from calib.segments import Segment
-from calib.tau import DEFAULT_TAU, TauSelection, choose_tau
+from calib.tau import DEFAULT_TAU, Innovations, TauSelection, choose_tau
 from estimators.api import DEFAULT_ESTIMATORS
 from estimators.calibration_replay import tau_replay, with_filter_figures
-from estimators.tuning import DEFAULT_BUDGET, tune_calibration
+from estimators.tuning import DEFAULT_BUDGET, TuneProgress, tune_calibration
 from estimators.warmup import prepare_compile
 from ingest.flightlog import FlightLog
 
@@ -66,14 +67,28 @@ def measure_noise(log: FlightLog, *, segment: Segment | None = None, fir: dict[s
     return calibrate(log, segment=segment, fir=fir, noise=noise, tau=tau, gravity=local_gravity(log))
 
 
-def choose_tau_by_replay(log: FlightLog, cal: Calibration, method: str = "likelihood") -> TauSelection:
+def choose_tau_by_replay(log: FlightLog, cal: Calibration, method: str = "likelihood",
+                         progress: Callable[[int], None] | None = None) -> TauSelection:
     """The eq 52 tau that makes the three-stage estimator's body-y accelerometer innovations most likely
-    (``method="likelihood"``) or brings their mean NIS to 1 (``"nis"``), with the evidence curves."""
-    return choose_tau(tau_replay(log, cal), method=method)
+    (``method="likelihood"``) or brings their mean NIS to 1 (``"nis"``), with the evidence curves; ``progress`` is
+    told the number of replays made after each (the grid's :data:`calib.tau.TAU_GRID_POINTS` first, side by side
+    in threads, then the search's)."""
+    replay = tau_replay(log, cal)
+    if progress is None:
+        return choose_tau(replay, method=method)
+    replays = itertools.count(1)
+
+    def counted(tau: float) -> Innovations:
+        innovations = replay(tau)
+        progress(next(replays))
+        return innovations
+
+    return choose_tau(counted, method=method)
 
 
 def identify_noise(log: FlightLog, cal: Calibration, estimators: str | Sequence[str] = DEFAULT_ESTIMATORS, *,
-                   budget: int = DEFAULT_BUDGET) -> Calibration:
+                   budget: int = DEFAULT_BUDGET, progress: TuneProgress | None = None) -> Calibration:
     """``cal`` completed with its filter figures (the in-flight bias, unless it has one) and the noise identified per
-    estimator from the flight's innovations (docs/calibration.md, 'Noise identification')."""
-    return tune_calibration(log, with_filter_figures(log, cal), estimators, budget=budget)
+    estimator from the flight's innovations (docs/calibration.md, 'Noise identification'); ``progress`` is told
+    after every replay (:data:`estimators.tuning.TuneProgress`)."""
+    return tune_calibration(log, with_filter_figures(log, cal), estimators, budget=budget, progress=progress)

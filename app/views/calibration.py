@@ -2,18 +2,21 @@
 matrices (eq 51) with tau (eq 52), the Allan deviations, and download CALIB.json / the PX4 .params file."""
 
 import hashlib
+import threading
 import time
+from collections.abc import Callable
 
 import numpy as np
 import pandas as pd
 import streamlit as st
+from streamlit.runtime.scriptrunner import add_script_run_ctx, get_script_run_ctx
 
 from app import adapters, figures, session, tables, time_range
 from calib.calibration import SENSORS
 from calib.figures import MEANING_LOWER_BOUND, MEANING_UPPER_BOUND
 from calib.fir import frequency_response
 from calib.tables import noise_meaning, noise_table, r_tables, table4
-from calib.tau import TAU_METHODS
+from calib.tau import TAU_GRID_POINTS, TAU_METHODS
 from workflows.exports import calibration_text
 
 TAU_CHOICES = (0.1, 0.2, 0.5, 1.0, 2.0, 5.0, 10.0, 20.0, 50.0, 100.0)
@@ -27,10 +30,26 @@ WINDOW_STEP_S = 0.1
 
 
 @st.fragment(run_every=2.0)
-def wait_for(future) -> None:
-    """Rerun the page when ``future`` is done (polled every 2 s, only this fragment meanwhile)."""
-    if future.done():
+def wait_for(job: adapters.IdentificationJob) -> None:
+    """The identification's progress, redrawn every 2 s (only this fragment meanwhile); the page reruns when it is
+    done."""
+    if job.future.done():
         st.rerun()
+    fraction, text = job.progress()
+    st.progress(fraction, text=f"{text} (running for {time.monotonic() - job.started_s:.0f} s)")
+
+
+def tau_progress(slot) -> Callable[[int], None]:
+    """Draws the automatic tau's replays in ``slot`` (from the replays' threads): the grid's share, then the search."""
+    script_context = get_script_run_ctx()
+
+    def show(replays: int) -> None:
+        add_script_run_ctx(threading.current_thread(), script_context)
+        grid = min(replays, TAU_GRID_POINTS)
+        slot.progress(grid / TAU_GRID_POINTS, text=f"Choosing tau: replay {replays} of the three-stage estimator "
+                      f"({grid}/{TAU_GRID_POINTS} grid points" + (", then the search)" if replays > grid else ")"))
+
+    return show
 
 
 log = session.require_log()
@@ -107,7 +126,11 @@ tau_mode = right.radio("tau (eq 52: multiplies the accelerometer's body-y varian
 st.session_state["calib_tau"] = st.session_state.get("calib_tau", 1.0)
 with session.input_errors():
     base = adapters.calibration(root, sha256, window, fir_rows, noise)
-    selection = None if tau_mode == "manual" else adapters.auto_tau(root, sha256, window, fir_rows, noise, tau_mode)
+    selection = None
+    if tau_mode != "manual":
+        slot = st.empty()
+        selection = adapters.auto_tau(root, sha256, window, fir_rows, noise, tau_mode, tau_progress(slot))
+        slot.empty()
 if selection is None:
     tau = right.select_slider("tau", TAU_CHOICES, key="calib_tau")
 else:  # greyed, showing the tau actually in use
@@ -211,9 +234,9 @@ if st.session_state[TUNE_WANTED_KEY]:
     digest = hashlib.sha256(calibration_text(current).encode()).hexdigest()
     job = adapters.identification(root, sha256, current, digest)
     if not job.future.done():
-        st.info(f"Identifying the noise from the flight's innovations: running for "
-                f"{time.monotonic() - job.started_s:.0f} s (it goes on if you leave this page; come back for it).")
-        wait_for(job.future)
+        st.info("Identifying the noise from the flight's innovations: it goes on if you leave this page; come back "
+                "for it.")
+        wait_for(job)
     elif job.future.exception() is not None:
         with session.input_errors():
             job.future.result()

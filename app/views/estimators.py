@@ -95,19 +95,19 @@ if stored.empty:
 
 # ------------------------------------------------------------------ the runs shown (issue 14: several overlaid)
 names = comparison.run_names(stored)
-settings_text = dict(zip(stored["run_id"], tables.runs_table(stored, workspace.list_logs()).apply(
-    lambda row: f"{row['created (UTC)']} · {row['estimators']} · heading {row['heading aid']} · {row['R']}",
-    axis=1), strict=True))
-labels = {run_id: f"{names[run_id]} · {text}" for run_id, text in settings_text.items()}
-kept = [run_id for run_id in st.session_state.get(RUNS_KEY, []) if run_id in labels][:MAX_RUNS]
+details = tables.run_details(stored, workspace.list_logs(), names)
+kept = [run_id for run_id in st.session_state.get(RUNS_KEY, []) if run_id in names][:MAX_RUNS]
 if not kept:  # the default: the run shown before (the Map page reads it), else the newest
     previous = st.session_state.get(RUN_KEY)
-    kept = [previous if previous in labels else next(iter(labels))]
+    kept = [previous if previous in names else next(iter(names))]
 st.session_state[RUNS_KEY] = kept
-selected = st.multiselect("Runs", list(labels), format_func=labels.get, key=RUNS_KEY, max_selections=MAX_RUNS,
+selected = st.multiselect("Runs", list(names), format_func=names.get, key=RUNS_KEY, max_selections=MAX_RUNS,
                           help="Pick several runs of this log (default vs calibrated R, magnetometer vs sun "
                                "heading, ...): every chart overlays them, one colour per estimator and one dash "
-                               "style per run, and the tables compare them with the baseline.")
+                               "style per run, and the tables compare them with the baseline. A run is named by "
+                               "its log, noise source and time; the settings are under *Run details*.")
+with st.expander("Run details: estimators, heading aid, noise (R), created"):
+    st.dataframe(details.loc[selected], hide_index=True, key="est_run_details")
 if not selected:
     st.info("Select at least one run above.")
     st.stop()
@@ -142,12 +142,38 @@ def widget_key(base: str, index: int) -> str:
     return f"{base}_{index}" if multi else base
 
 
+for run_name, run_report in reports.items():  # a forced run's refused inputs, once per run, never collapsed
+    for warning in dict.fromkeys(w for facts in run_report.values() for w in facts["warnings"]
+                                 if w.startswith(UNTRUSTED_PREFIX)):
+        st.error(f"{run_name}: {warning}" if multi else warning)
+
+st.subheader("RMS errors (paper Table 2 layout)")
+if result.reference is None:
+    st.warning(comparison.reference_sentence(None))
+else:
+    st.markdown(f"**{comparison.reference_sentence(result.reference)}**")
+    st.caption("Position = horizontal distance, wind = horizontal vector difference; airspeed, course and wind in "
+               f"flight only (reference ground speed > {comparison.MIN_COURSE_SPEED_M_S:g} m/s). "
+               f"{comparison.window_caption(result, clock.start_s)} (docs/evaluation.md).")
+    if not multi:
+        st.table(adapters.rms_table(root, sha256, run_id).style.format("{:.2f}", na_rep="–"))
+    else:
+        deltas = comparison.rms_comparison({name: adapters.rms_table(root, sha256, rid) for name, rid in shown.items()},
+                                           names[baseline])
+        st.caption(f"Every run against the baseline **{names[baseline]}**: RMS (difference, in the quantity's "
+                   f"unit, and in % of the baseline's RMS); ▼ green improved, ▲ red regressed, ≈ within "
+                   f"{comparison.RMS_CHANGE_TOLERANCE_PCT:g} %.")
+        st.table(tables.rms_delta_style(deltas, names[baseline]))
+        with st.expander("The comparison as a long table"):
+            st.dataframe(deltas, hide_index=True, key="rms_comparison",
+                         column_config={c: st.column_config.NumberColumn(c, format="%.3f")
+                                        for c in ("RMS", "baseline RMS", "delta", "delta [%]")})
+
+st.subheader("Consistency")
+st.caption("One verdict per estimator and run (docs/calibration.md, 'Consistency checks'); the channels behind it "
+           "are in the estimator's details below it.")
 for index, (run_name, run_report) in enumerate(reports.items()):
     prefix = f"{run_name}: " if multi else ""
-    untrusted = dict.fromkeys(w for facts in run_report.values() for w in facts["warnings"]
-                              if w.startswith(UNTRUSTED_PREFIX))
-    for warning in untrusted:  # a forced run's refused inputs, once for all estimators, never collapsed
-        st.error(prefix + warning)
     for name, facts in sorted(run_report.items(),  # the inconsistent estimators first
                               key=lambda item: item[1]["details"].get("verdict", {}).get("status") != "inconsistent"):
         show_verdict(f"{prefix}{name}", facts["details"].get("verdict"))
@@ -172,27 +198,6 @@ for index, (run_name, run_report) in enumerate(reports.items()):
                              key=widget_key(f"calibration_{name}", index))
             st.json(facts["details"], expanded=False)
 
-st.subheader("RMS errors (paper Table 2 layout)")
-if result.reference is None:
-    st.warning(comparison.reference_sentence(None))
-else:
-    st.markdown(f"**{comparison.reference_sentence(result.reference)}**")
-    st.caption("Position = horizontal distance, wind = horizontal vector difference; airspeed, course and wind in "
-               f"flight only (reference ground speed > {comparison.MIN_COURSE_SPEED_M_S:g} m/s). "
-               f"{comparison.window_caption(result, clock.start_s)} (docs/evaluation.md).")
-    if not multi:
-        st.table(adapters.rms_table(root, sha256, run_id).style.format("{:.2f}", na_rep="–"))
-    else:
-        deltas = comparison.rms_comparison({name: adapters.rms_table(root, sha256, rid) for name, rid in shown.items()},
-                                           names[baseline])
-        st.caption(f"Every run against the baseline **{names[baseline]}**: RMS (difference, in the quantity's "
-                   f"unit, and in % of the baseline's RMS); ▼ green improved, ▲ red regressed, ≈ within "
-                   f"{comparison.RMS_CHANGE_TOLERANCE_PCT:g} %.")
-        st.table(tables.rms_delta_style(deltas, names[baseline]))
-        with st.expander("The comparison as a long table"):
-            st.dataframe(deltas, hide_index=True, key="rms_comparison",
-                         column_config={c: st.column_config.NumberColumn(c, format="%.3f")
-                                        for c in ("RMS", "baseline RMS", "delta", "delta [%]")})
 
 PANELS = comparison.STATE_PANELS
 ERROR_ROWS = comparison.ERROR_ROWS

@@ -4,7 +4,7 @@ detail."""
 
 import streamlit as st
 
-from app import adapters, figures, maps, session, tables
+from app import adapters, comparison, figures, maps, session, tables
 
 #: The Estimators page's run selector: the run shown there is the one the map opens on.
 ESTIMATORS_RUN_KEY = "est_run"
@@ -22,13 +22,14 @@ if stored.empty:
     st.info("No estimator run for this log yet: the map shows the log's own tracks (GPS, onboard estimate, truth). "
             "Run the estimators on the **Estimators** page (or `solarnav replay`) to add their tracks.")
 else:
-    labels = dict(zip(stored["run_id"], tables.runs_table(stored, workspace.list_logs()).apply(
-        lambda row: f"{row['created (UTC)']} · {row['estimators']} · heading {row['heading aid']} · {row['R']}",
-        axis=1), strict=True))
+    labels = comparison.run_names(stored)
     if st.session_state.get(RUN_KEY) not in labels:
         current = st.session_state.get(ESTIMATORS_RUN_KEY)
         st.session_state[RUN_KEY] = current if current in labels else next(iter(labels))
-    run_id = st.selectbox("Run", list(labels), format_func=labels.get, key=RUN_KEY)
+    details = tables.run_details(stored, workspace.list_logs(), labels)
+    run_id = st.selectbox("Run", list(labels), format_func=labels.get, key=RUN_KEY,
+                          help="; ".join(f"{column}: {value}" for column, value in
+                                         details.loc[st.session_state[RUN_KEY]].items()))
 
 tracks = maps.reference_tracks(log)
 if run_id is not None:
