@@ -387,6 +387,21 @@ def run_calibration(root: str, sha256: str, noise: str) -> Calibration | None:
     return read_calibration(open_workspace(root).calibration_path(noise))
 
 
+def flight_report_html(root: str, sha256: str, settings: dict) -> str:
+    """The self-contained HTML flight report (as ``solarnav report``) of a log replayed with a stored run's
+    settings: its estimators, heading aid, output rate and calibration (a datasheet run's report is calibrated from
+    the flight, as the command's)."""
+    from app.report import render_report  # plotly's offline page: only this download needs it
+    from workflows.report import flight_report
+
+    defaults = runs.RunSettings()
+    calibration = run_calibration(root, sha256, settings.get("noise", defaults.noise))
+    return render_report(flight_report(stored_log(root, sha256), calibration=calibration,
+                                       estimators=tuple(settings.get("estimators", defaults.estimators)),
+                                       heading=settings.get("heading", defaults.heading),
+                                       rate_hz=float(settings.get("rate_hz", defaults.rate_hz))))
+
+
 # ---------------------------------------------------------------------------------------------------- sun vector
 @st.cache_data(max_entries=8, show_spinner="Solving the sun vector ...")
 def sun_table(root: str, sha256: str) -> pd.DataFrame:

@@ -140,3 +140,52 @@ def test_compare_logs_page_overlays_one_estimator_of_two_logs(tmp_path: Path, mo
     [chart] = [json.loads(chart.proto.spec) for chart in at.get("plotly_chart")]
     assert chart["layout"]["title"]["text"] == "Errors: three_stage across logs"
     assert at.selectbox(key=f"cmp_run_{shas[1]}").value == run_ids[1]
+
+
+def _parameter_view(root: Path, monkeypatch, first: str, second: str) -> AppTest:
+    """The Compare logs page's parameter view of two stored logs."""
+    monkeypatch.setenv(session.WORKSPACE_ENV, str(root))
+    monkeypatch.setattr(samples, "find_samples", lambda *args: [])
+    at = AppTest.from_file(str(ENTRYPOINT), default_timeout=TIMEOUT_S)
+    at.run()
+    at.switch_page("views/compare_logs.py").run()
+    at.segmented_control(key="cmp_view").set_value("Parameters between two logs").run()
+    at.selectbox(key="cmp_params_a").set_value(first).run()
+    at.selectbox(key="cmp_params_b").set_value(second).run()
+    assert not at.exception and not at.error
+    return at
+
+
+def test_the_parameter_view_of_two_bundled_logs(tmp_path: Path, monkeypatch):
+    """Issue 33 (1): equal parameters say so (no empty table); each flight's onboard EKF2 noise sits next to the
+    automatic calibration's values."""
+    workspace = Workspace(tmp_path)
+    shas = [workspace.add_log(path.read_bytes(), path.name).sha256 for path in LOGS]
+    at = _parameter_view(tmp_path, monkeypatch, *shas)
+    assert any("0 changed, 0 added (only in B), 0 removed (only in A)" in text.value for text in at.markdown)
+    assert not [frame for frame in at.dataframe if "change" in frame.value.columns]
+    noise = [frame.value for frame in at.dataframe if "onboard" in frame.value.columns]
+    assert len(noise) == 2
+    for table in noise:  # the calibrated sensor noises have solarnav's value (the process noises need identification)
+        assert table["name"].str.startswith("EKF2_").all(), table
+        assert {"EKF2_GYR_NOISE", "EKF2_ACC_NOISE", "EKF2_MAG_NOISE", "EKF2_BARO_NOISE"} <= set(
+            table.loc[table["solarnav"].notna(), "name"]), table
+    assert sum("automatic calibration" in text.value for text in at.markdown) == 2
+
+
+def test_the_parameter_view_of_the_two_real_octocopter_flights(tmp_path: Path, monkeypatch, real_logs_dir):
+    """Issue 33 (1): the dashboard's diff is the library's (as ``solarnav params``), grouped by prefix."""
+    from ingest.log_formats import load_flight_log
+    from workflows.params import diff_parameters
+
+    paths = [real_logs_dir / "px4_1.14_octo_flight_61.ulg", real_logs_dir / "px4_1.14_octo_flight_123.ulg"]
+    workspace = Workspace(tmp_path)
+    shas = [workspace.add_log(path.read_bytes(), path.name).sha256 for path in paths]
+    at = _parameter_view(tmp_path, monkeypatch, *shas)
+    expected = diff_parameters(*(load_flight_log(path).meta.parameters for path in paths))
+    assert len(expected)  # two flights of one vehicle still differ in some parameters
+    [shown] = [frame.value for frame in at.dataframe if "change" in frame.value.columns]
+    assert list(shown["name"]) == list(expected["name"]) and list(shown["change"]) == list(expected["change"])
+    assert list(at.multiselect(key=f"cmp_params_groups_{shas[0]}_{shas[1]}").value) == list(
+        dict.fromkeys(expected["group"]))
+    assert len([frame for frame in at.dataframe if "onboard" in frame.value.columns]) == 2

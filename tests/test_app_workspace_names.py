@@ -350,8 +350,8 @@ def test_workspace_page_renames_and_deletes(tmp_path, monkeypatch):
     assert at.text_input(key=f"ws_name_{choice}").value == "ruined flight_.ulg"
     assert "ruined flight_.ulg" in at.selectbox(key="ws_entry").format_func(choice)
     assert list(at.dataframe[2].value["name"]) == [Workspace(root).entry_name("runs", run.id)]
-    assert Workspace(root).entry_name("runs", run.id) == run.name.replace("doomed.ulg",
-                                                                         sanitize_label("ruined flight_.ulg"))
+    assert run.name.startswith("doomed · ")  # the log stem starts a default run name (the new one without "_")
+    assert Workspace(root).entry_name("runs", run.id) == run.name.replace("doomed", "ruined flight", 1)
     assert Workspace(root).entry_name("calibrations", calib.id) == "hover test"  # a name given stays
 
     # delete the log: nothing happens without the confirmation, then log, calibration and run go

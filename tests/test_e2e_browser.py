@@ -19,6 +19,7 @@ from pathlib import Path
 import pytest
 
 from app.batch.figures import FLAG_TRACE
+from app.report import SECTIONS as REPORT_SECTIONS
 from app.samples import SAMPLE_DIR
 from tests.batch_logs import DOUBLED_FROM, N_FLIGHTS, OUTDIR_ESTIMATORS, VEHICLE, flight_name, write_batch_outdir
 from tests.conftest import REPO_DIR
@@ -560,6 +561,54 @@ def test_compare_logs_refuses_a_verdict_across_references_in_a_browser(page, rea
     _screenshot(page, SHOTS_DIR / "d_compare_logs_across_references")
 
 
+
+def test_the_octocopter_calibration_says_its_figures_are_upper_bounds_in_a_browser(page, real_logs_dir):
+    """Issue 34 (e): the octocopter has no steady segment: its noise figures are named upper bounds on the page."""
+    _add_log(page, real_logs_dir / OCTOCOPTER)
+    _open(page, "Calibration")
+    warning = page.locator("[data-testid='stAlert']").filter(has_text="are upper bounds")
+    warning.wait_for()
+    assert "motion and vibration count as noise" in warning.inner_text()
+    _screenshot(page, SHOTS_DIR / "e_octocopter_calibration_upper_bounds")
+
+
+def test_the_ardupilot_log_offers_the_ek3_parm_in_a_browser(page, real_logs_dir):
+    """Issue 34 (f): an ArduPilot log's calibration downloads as an EKF3 .parm (as the CLI writes it) whose header
+    names the flight and whose figures it holds (calibrated, or identified for which estimator)."""
+    _add_log(page, real_logs_dir / GROUND_WALK)
+    _open(page, "Calibration")
+    button = page.locator("[data-testid='stDownloadButton']").filter(has_text="ArduPilot EKF3 .parm")
+    button.wait_for()
+    _screenshot(page, SHOTS_DIR / "f_ground_walk_calibration_exports")
+    with page.expect_download() as download:
+        button.get_by_role("button").click()
+    text = Path(download.value.path()).read_text()
+    assert download.value.suggested_filename == "solarnav_ek3.parm"
+    assert f"calibrated by solarnav from {GROUND_WALK}" in text, text[:400]
+    assert "the calibrated figures (no identification)" in text, text[:400]  # which figures: none identified
+    assert re.search(r"^EK3_\w+[ ,]+[-+0-9.eE]+", text, re.MULTILINE), text[:400]
+
+
+def test_noise_identification_survives_leaving_the_page_in_a_browser(page, real_logs_dir):
+    """Issue 34 (g): identification started on the Calibration page goes on while another page is open, and the
+    page found again shows it running or its result, with the toggle still on."""
+    _add_log(page, real_logs_dir / OCTOCOPTER)
+    _open(page, "Calibration")
+    page.get_by_text("Identify noise", exact=False).first.click()
+    page.get_by_text("Identifying the noise from the flight's innovations").wait_for()
+    _screenshot(page, SHOTS_DIR / "g_identification_running")
+    _open(page, "Overview")
+    _open(page, "Calibration")
+    toggle = page.locator("[data-testid='stCheckbox']").filter(has_text="Identify noise").locator("input")
+    assert toggle.is_checked()
+    running = page.get_by_text("Identifying the noise from the flight's innovations")
+    done = page.locator("[data-testid='stDataFrame']").filter(has=page.locator("[role=columnheader]"))
+    assert running.count() or done.count(), "neither running nor done after coming back"
+    page.get_by_text("Verdict of the tuned mean NIS").wait_for(timeout=RUN_MS)  # and it finishes
+    _settle(page)
+    assert toggle.is_checked()
+    _screenshot(page, SHOTS_DIR / "g_identification_found_done")
+
 ISSUE33_DIR = Path("issue33")
 #: Top [px] of every element of the main area that the selector finds, in page order.
 TOPS_JS = """selector => [...document.querySelectorAll('[data-testid="stMain"] ' + selector)]
@@ -592,5 +641,30 @@ def test_two_runs_of_a_real_log_read_at_a_glance_in_a_browser(page, real_logs_di
     assert table and charts, (table, charts)
     assert len(verdicts) == 2 * len(ESTIMATORS), [alert["text"] for alert in alerts]
     assert table[0] < verdicts[0]["top"] and verdicts[-1]["top"] < charts[0], (table, verdicts, charts)
-    between = [alert["text"] for alert in alerts if table[0] < alert["top"] < charts[0]]
-    assert len(between) == len(verdicts), between  # no box per channel, nothing else before the charts
+    others = [alert["text"] for alert in alerts if table[0] < alert["top"] < charts[0] and alert not in verdicts]
+    assert len(others) == len(set(others)), others  # no box per channel: each note once (issue 34)
+    assert sum(text.startswith(tuple(f"{name}: Expected" for name in chosen)) for text in others) <= len(chosen)
+
+
+
+def test_the_flight_report_downloads_and_opens_offline_in_a_browser(page, tmp_path):
+    """Issue 33 (3): the bundled mission's report from the Estimators page opens in a browser without network: every
+    section, its charts drawn by the embedded plotly."""
+    _ensure_run(page, MISSION)
+    button = page.locator("[data-testid='stDownloadButton']").filter(has_text="Flight report (.html)").first
+    with page.expect_download(timeout=RUN_MS) as download:
+        button.get_by_role("button").click()
+    report = tmp_path / "report.html"
+    download.value.save_as(report)
+    assert report.stat().st_size > 1e6  # plotly itself is embedded
+    context = page.context.browser.new_context(offline=True, viewport={"width": 1400, "height": 1000})
+    try:
+        offline = context.new_page()
+        offline.goto(report.as_uri())
+        offline.wait_for_function("() => document.querySelectorAll('.js-plotly-plot .main-svg').length >= 3")
+        headings = offline.locator("h2").all_inner_texts()
+        assert {label for _, label in REPORT_SECTIONS} <= set(headings), headings
+        (ARTIFACTS_DIR / ISSUE33_DIR).mkdir(parents=True, exist_ok=True)
+        offline.screenshot(path=str(ARTIFACTS_DIR / ISSUE33_DIR / "report_offline.png"), full_page=True)
+    finally:
+        context.close()

@@ -57,9 +57,9 @@ class FlightReport:
 
 def flight_report(log: FlightLog, *, calibration: Calibration | None = None, tune: bool = False,
                   estimators: str | Sequence[str] = DEFAULT_ESTIMATORS, heading: str = "mag",
-                  on_compile: CompileNotice | None = None) -> FlightReport:
+                  rate_hz: float = REPORT_RATE_HZ, on_compile: CompileNotice | None = None) -> FlightReport:
     """Calibrate ``log`` (unless ``calibration`` is given; ``tune`` identifies the noise too), replay
-    ``estimators`` with it at :data:`REPORT_RATE_HZ`, evaluate them and export the autopilot parameters.
+    ``estimators`` with it at ``rate_hz`` [Hz] (output rate), evaluate them and export the autopilot parameters.
 
     A log without a segment to calibrate on is replayed with the datasheet noise, and one whose inputs the
     estimators refuse is reported without estimates; both say why."""
@@ -73,7 +73,7 @@ def flight_report(log: FlightLog, *, calibration: Calibration | None = None, tun
     result, refusal, evaluation = None, "", None
     try:
         result = replay_log(log, estimators=estimators, calibration=calibration, heading=heading,
-                            rate_hz=REPORT_RATE_HZ)
+                            rate_hz=rate_hz)
         evaluation = evaluate(result.states, log)
     except InputError as exc:
         refusal = str(exc)

@@ -1,12 +1,17 @@
 """Compare logs: the same estimator across several logs of the workspace, each with one of its stored runs:
 attitude, errors and wind overlaid over the time since each log's start, and the RMS table of every log with its
 difference to a baseline log, like for like only: a log against another reference than the baseline's (onboard
-estimate vs ground truth) gets no improved / regressed verdict, and a sentence says why (issue 34)."""
+estimate vs ground truth) gets no improved / regressed verdict, and a sentence says why (issue 34). Its other view:
+the autopilot parameters that differ between two logs, grouped by prefix, and each flight's onboard noise
+parameters next to solarnav's (as ``solarnav params``; docs/workflows.md, 'Parameter diff')."""
 
 import streamlit as st
 
 from app import adapters, comparison, figures, session, tables
+from calib.export import read_calibration
 from estimators.api import ESTIMATORS
+from ingest.errors import InputError
+from workflows.params import ADDED, CHANGED, REMOVED, autopilot_of, diff_parameters, noise_parameter_table
 
 #: Most logs overlaid at once (the parsed logs and comparisons of that many stay cached: app.adapters).
 MAX_LOGS = 4
@@ -16,10 +21,68 @@ CHARTS = {"Attitude": comparison.STATE_PANELS["Attitude"], "Errors": comparison.
           "Wind": comparison.STATE_PANELS["Wind"]}
 #: Why a chart's row may have no value in any log.
 MISSING_WHY = {"Attitude": "", "Errors": comparison.MISSING_ERRORS_WHY, "Wind": comparison.MISSING_WIND_WHY}
+ESTIMATES_VIEW, PARAMETERS_VIEW = "Estimates across logs", "Parameters between two logs"
 
 root = session.root()
 workspace = session.workspace()
 st.title("Compare logs")
+
+
+def solarnav_noise(sha256: str) -> tuple[object, str]:
+    """(calibration, where it comes from) of a log for its noise table: its newest saved calibration (which may hold
+    identified noise), else the automatic calibration; (None, why) when the log cannot be calibrated."""
+    saved = workspace.list_calibrations(sha256)
+    if len(saved):
+        newest = saved.iloc[0]
+        return read_calibration(workspace.calibration_path(newest["calib_id"])), f"saved calibration {newest['name']}"
+    try:
+        return adapters.calibration(root, sha256, None, (), "sigma"), "automatic calibration (Calibration page)"
+    except InputError as exc:
+        return None, f"not calibrated: {exc}"
+
+
+def parameter_view(entries: dict) -> None:
+    """The parameter diff of two workspace logs (changed, added, removed; grouped by prefix) and, per log, the
+    onboard estimator's noise parameters next to solarnav's values for that flight in the same units."""
+    if len(entries) < 2:
+        st.info("Add a second log to the workspace (Home page) to compare its parameters.")
+        return
+    names = {sha256: f"{entry.display_name} ({sha256[:8]})" for sha256, entry in entries.items()}
+    left, right = st.columns(2)
+    first = left.selectbox("Log A", list(names), format_func=names.get, key="cmp_params_a")
+    second = right.selectbox("Log B", [sha256 for sha256 in names if sha256 != first], format_func=names.get,
+                             key="cmp_params_b")
+    logs = {sha256: adapters.stored_log(root, sha256) for sha256 in (first, second)}
+    table = diff_parameters(logs[first].meta.parameters, logs[second].meta.parameters)
+    counts = table["change"].value_counts()
+    st.markdown(f"**{counts.get(CHANGED, 0)} changed, {counts.get(ADDED, 0)} added (only in B), "
+                f"{counts.get(REMOVED, 0)} removed (only in A)** of {len(logs[first].meta.parameters)} / "
+                f"{len(logs[second].meta.parameters)} parameters (compared at float32 precision).")
+    if len(table):
+        groups = list(dict.fromkeys(table["group"]))
+        shown = st.multiselect("Groups", groups, default=groups, key=f"cmp_params_groups_{first}_{second}",
+                               help="Parameter prefixes (EKF2_, EK3_, SENS_, CAL_, ...).")
+        st.dataframe(table[table["group"].isin(shown)].rename(columns={"value_a": "A", "value_b": "B"}),
+                     hide_index=True, key="cmp_params_diff", width="stretch")
+        st.download_button("Parameter diff (.csv)", table.to_csv(index=False), file_name="parameter_diff.csv",
+                           mime="text/csv", key="cmp_params_download")
+    st.subheader("Onboard noise parameters vs solarnav's")
+    st.caption("Per flight, its autopilot's estimator noise parameters (EKF2 for PX4, EKF3 for ArduPilot) next to the "
+               "values solarnav calibrated or identified for the same flight, in the autopilot's units; ratio = "
+               "solarnav / onboard. Identify the noise on the Calibration page and save it to use identified values.")
+    for sha256, log in logs.items():
+        cal, how = solarnav_noise(sha256)
+        autopilot = "EKF3" if autopilot_of(log) == "ardupilot" else "EKF2"
+        st.markdown(f"**{session.markdown_text(entries[sha256].display_name)}**: onboard {autopilot}; solarnav "
+                    f"from the {session.markdown_text(how)}")
+        st.dataframe(noise_parameter_table(log, cal), hide_index=True, key=f"cmp_params_noise_{sha256}",
+                     width="stretch", column_config={"ratio": st.column_config.NumberColumn(format="%.2g")})
+
+
+view = st.segmented_control("View", [ESTIMATES_VIEW, PARAMETERS_VIEW], default=ESTIMATES_VIEW, key="cmp_view")
+if view == PARAMETERS_VIEW:
+    parameter_view({entry.sha256: entry for entry in workspace.list_logs()})
+    st.stop()
 st.caption("One estimator across several logs, each with one of its stored runs: every chart starts each log at its "
            "own first IMU sample (time since log start), and the RMS table compares each log with a baseline log.")
 

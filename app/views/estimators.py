@@ -1,6 +1,7 @@
 """Estimators: run the three EKFs (choice of estimators, heading aid, noise) with progress, and compare them with
 the onboard estimate and the ground truth: states, errors, the RMS table (paper Table 2), innovations and NIS."""
 
+import json
 import threading
 
 import pandas as pd
@@ -324,9 +325,17 @@ st.caption("Each table keeps the log-clock `time_s` and adds `time_since_start_s
 for index, (run_name, shown_id) in enumerate(shown.items()):
     if multi:
         st.caption(f"Run **{run_name}**")
-    columns = st.columns(4)
+    columns = st.columns(5)
     for k, (table, suffix) in enumerate([(t, s) for t in ("states", "diagnostics") for s in ("parquet", "csv")]):
         columns[k].download_button(
             f"{table} (.{suffix})", lambda table=table, suffix=suffix, shown_id=shown_id: comparison.table_download(
                 adapters.run_table(root, shown_id, table), clock, suffix),
             file_name=f"{sha256[:8]}_{shown_id}_{table}.{suffix}", key=widget_key(f"download_{table}_{suffix}", index))
+    run_settings = json.loads(stored.set_index("run_id").at[shown_id, "settings_json"])
+    columns[4].download_button(
+        "Flight report (.html)", lambda run_settings=run_settings: adapters.flight_report_html(root, sha256,
+                                                                                              run_settings),
+        file_name=f"{sha256[:8]}_{shown_id}_report.html", mime="text/html", key=widget_key("download_report", index),
+        help="One self-contained HTML file (works offline), as `solarnav report`: the flight, its streams, the "
+             "calibration, each estimator's verdict, the comparison, the track and the autopilot parameters; the "
+             "log is replayed with this run's settings when you click (a few seconds).")

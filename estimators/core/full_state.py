@@ -121,6 +121,81 @@ def current_walk(walk_psd, held_walk, t, t_wind_observed):
     return walk_psd if t - t_wind_observed <= WIND_HOLD_S else held_walk
 
 
+#: Adaptive wind random walk (docs/estimators.md, 'Wind that follows gusts'). A wind estimate that lags the air
+#: mass leaves innovations of one sign for seconds: their lag-1 correlation (normalised innovations of consecutive
+#: airspeed, and of consecutive sideslip, updates) rises, whatever R is (the NIS alone cannot tell a too small walk
+#: from a too large R). Time constant [s] of its moving mean; the correlation the walk is held at (a white sequence
+#: has 0; slow sensor errors give some); the time [s] in which a correlation of 0.5 above it multiplies the walk's
+#: density by e; the largest factor on the wind's squared random-walk density (1600: a walk 40 times the configured
+#: one, 0.05 -> 2 m/s/sqrt(s), about the turbulence of a gusty day); the largest product one pair adds; and the
+#: longest gap [s] between two updates of one channel that still pairs them.
+WIND_CORR_TIME_S = 10.0
+WIND_CORR_TARGET = 0.25
+WIND_WALK_RATE_S = 5.0
+WIND_WALK_MAX_SCALE = 1600.0
+WIND_PAIR_CAP = 9.0
+WIND_PAIR_GAP_S = 1.0
+#: Slots of the adaptation state (:func:`wind_adaptation`).
+_CORR, _T, _LOG_SCALE, _PREV_Z, _PREV_T = 0, 1, 2, 3, 5
+
+
+@njit(cache=True)
+def wind_adaptation():
+    """The state of :func:`adapt_wind_walk`: moving mean lag-1 correlation (0 at the start), its time [s], the
+    natural log of the factor on the wind's squared walk density (0: the configured walk), the last normalised
+    innovation of the airspeed and of the sideslip channel and their times [s]."""
+    return np.array([0.0, -math.inf, 0.0, 0.0, 0.0, -math.inf, -math.inf])
+
+
+@njit(cache=True)
+def adapt_wind_walk(state, t, diag_f, diag_i, first, last):
+    """Fold the airspeed / sideslip updates recorded in ``diag_f[first:last]`` at ``t`` [s] into the moving mean
+    lag-1 correlation of each channel's normalised innovations ``state[0]`` (time constant
+    :data:`WIND_CORR_TIME_S`, each product capped at :data:`WIND_PAIR_CAP`) and integrate its excess over
+    :data:`WIND_CORR_TARGET` into the log factor ``state[2]`` (rate :data:`WIND_WALK_RATE_S`, within 0 and log
+    :data:`WIND_WALK_MAX_SCALE`): the wind walk grows while the wind estimate lags (correlated innovations, as in
+    turbulence) and shrinks back to the configured walk while they are white (calm air)."""
+    total, count = 0.0, 0
+    for k in range(first, min(last, diag_f.shape[0])):
+        nu, s_var = diag_f[k, 1], diag_f[k, 2]
+        if not (math.isfinite(nu) and s_var > 0.0):
+            continue
+        z = nu / math.sqrt(s_var)
+        channel = 0 if diag_i[k, 0] == AIRSPEED else 1
+        if t - state[_PREV_T + channel] <= WIND_PAIR_GAP_S:
+            total += min(max(z * state[_PREV_Z + channel], -WIND_PAIR_CAP), WIND_PAIR_CAP)
+            count += 1
+        state[_PREV_Z + channel] = z
+        state[_PREV_T + channel] = t
+    if count == 0:
+        return
+    if not math.isfinite(state[_T]):
+        state[_T] = t
+        return
+    dt = max(t - state[_T], 0.0)
+    state[_CORR] += (1.0 - math.exp(-dt / WIND_CORR_TIME_S)) * (total / count - state[_CORR])
+    state[_T] = t
+    log_scale = state[_LOG_SCALE] + dt / WIND_WALK_RATE_S * (state[_CORR] - WIND_CORR_TARGET) / 0.5
+    state[_LOG_SCALE] = min(max(log_scale, 0.0), math.log(WIND_WALK_MAX_SCALE))
+
+
+@njit(cache=True)
+def wind_walk_scale(state):
+    """The factor on the wind's squared random-walk density (:func:`adapt_wind_walk`): 1 to
+    :data:`WIND_WALK_MAX_SCALE`."""
+    return math.exp(state[_LOG_SCALE])
+
+
+@njit(cache=True)
+def scaled_wind_walk(walk_psd, wind_index, scale, out):
+    """``walk_psd`` into ``out`` with the two wind states (from ``wind_index``; < 0: none) times ``scale``."""
+    out[:] = walk_psd
+    if wind_index >= 0:
+        out[wind_index] *= scale
+        out[wind_index + 1] *= scale
+    return out
+
+
 @njit(cache=True)
 def held_wind_walk(walk_psd, wind_index):
     """Copy of the squared random-walk densities ``walk_psd`` with the two wind states (from ``wind_index``; < 0:

@@ -41,13 +41,18 @@ from estimators.core.full_state import (
     EIG_FLOOR,
     MAG_HEADING,
     PD_CHECK_EVERY,
+    adapt_wind_walk,
     component_range,
     current_walk,
     held_wind_walk,
     scalar_innovation,
+    scaled_wind_walk,
+    wind_adaptation,
     wind_observed,
+    wind_walk_scale,
 )
 from estimators.core.recorder import (
+    C_DIAG,
     C_OUTPUTS,
     C_REPAIRS,
     C_RESETS,
@@ -60,7 +65,7 @@ from estimators.core.schedule import COVARIANCE, EVENT, PROPAGATE
 from estimators.direct import model
 from estimators.direct.measurements import h_gps_velocity, mag_heading, measurement
 from estimators.direct.model import I_P, I_TH, I_V, L_BM, L_W, N_DYNAMIC, euler_matrices
-from estimators.inputs.records import AIRSPEED, BARO, GPS_POS, GPS_VEL, MAG, OUTPUT, SUN
+from estimators.inputs.records import AIRSPEED, BARO, GPS_POS, GPS_VEL, MAG, OUTPUT, SIDESLIP, SUN
 from estimators.sun.measurement import sun_tangent_basis, tangent_projection
 
 #: Columns of the kernel's per-epoch output array.
@@ -448,6 +453,8 @@ def _loop(imu_gyro, imu_accel, ev_kind, ev_val, ev_var, op, op_dt, op_index, set
     gps_mon = reacquisition.gps_monitor()
     air_ok = False  # the last airspeed update was accepted (reset_to_gps)
     held_walk = held_wind_walk(settings.walk_psd, layout[L_W])
+    wind_nis = wind_adaptation()  # the wind walk follows the turbulence (adapt_wind_walk)
+    walk_now = np.empty_like(settings.walk_psd)
     t_now = -math.inf
     t_wind_observed = -math.inf
     n_out = 0
@@ -463,7 +470,8 @@ def _loop(imu_gyro, imu_accel, ev_kind, ev_val, ev_var, op, op_dt, op_index, set
             linalg.accumulate_inputs(acc, op_dt[s], imu_gyro[k], imu_accel[k])
         elif code == COVARIANCE:
             if acc[0] > 0.0:
-                walk = current_walk(settings.walk_psd, held_walk, t_now, t_wind_observed)
+                walk = scaled_wind_walk(current_walk(settings.walk_psd, held_walk, t_now, t_wind_observed),
+                                        layout[L_W], wind_walk_scale(wind_nis), walk_now)
                 _flush_covariance(P, x_cov, acc, settings, walk, R_nb, S_euler, W_euler, A, F, Qd, work,
                                   mean_gyro, columns, F_values, F_cols, F_counts, counters)
             if not linalg.is_healthy(x, P):
@@ -507,6 +515,9 @@ def _loop(imu_gyro, imu_accel, ev_kind, ev_val, ev_var, op, op_dt, op_index, set
                     counters[C_WIND_INITS] += 1
                     air_ok = True
                 else:
+                    first = counters[C_DIAG]
                     air_ok = _fuse(x, P, kind, values, variances, t, settings, gps_mon, air_ok, fw, diag_f, diag_i,
                                    counters)
+                    if kind in (AIRSPEED, SIDESLIP):
+                        adapt_wind_walk(wind_nis, t, diag_f, diag_i, first, counters[C_DIAG])
     counters[C_OUTPUTS] = n_out

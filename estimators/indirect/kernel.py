@@ -47,13 +47,18 @@ from estimators.core.full_state import (
     EIG_FLOOR,
     MAG_HEADING,
     PD_CHECK_EVERY,
+    adapt_wind_walk,
     component_range,
     current_walk,
     held_wind_walk,
     scalar_innovation,
+    scaled_wind_walk,
+    wind_adaptation,
     wind_observed,
+    wind_walk_scale,
 )
 from estimators.core.recorder import (
+    C_DIAG,
     C_OUTPUTS,
     C_REPAIRS,
     C_RESETS,
@@ -65,7 +70,7 @@ from estimators.core.recorder import (
 from estimators.core.schedule import COVARIANCE, EVENT, PROPAGATE
 from estimators.indirect import model as m
 from estimators.indirect.measurements import mag_heading, measurement
-from estimators.inputs.records import AIRSPEED, GPS_POS, GPS_VEL, MAG, OUTPUT, SUN
+from estimators.inputs.records import AIRSPEED, GPS_POS, GPS_VEL, MAG, OUTPUT, SIDESLIP, SUN
 from estimators.sun.measurement import sun_tangent_basis, tangent_projection
 
 # counters: the shared slots of estimators.core.recorder (C_DIAG .. C_OUTPUTS), then this filter's
@@ -403,6 +408,8 @@ def run_kernel(imu_gyro, imu_accel, ev_kind, ev_imu, ev_val, ev_var, op, op_dt, 
             wind_active = True
             aw = a
     held_walk = held_wind_walk(s.walk_psd, aw)
+    wind_nis = wind_adaptation()  # the wind walk follows the turbulence (adapt_wind_walk)
+    walk_now = np.empty_like(s.walk_psd)
     t_now = -math.inf
     t_wind_observed = -math.inf
     last_row = imu_gyro.shape[0] - 1
@@ -417,7 +424,8 @@ def run_kernel(imu_gyro, imu_accel, ev_kind, ev_imu, ev_val, ev_var, op, op_dt, 
             linalg.accumulate_inputs(acc, op_dt[step], imu_gyro[k], imu_accel[k])
         elif code == COVARIANCE:
             if acc[0] > 0.0:
-                flush_covariance(P, s, current_walk(s.walk_psd, held_walk, t_now, t_wind_observed), w, counters)
+                walk = current_walk(s.walk_psd, held_walk, t_now, t_wind_observed)
+                flush_covariance(P, s, scaled_wind_walk(walk, aw, wind_walk_scale(wind_nis), walk_now), w, counters)
             _check_health(x, P, x_safe, s.P0, w.zero_error, counters)
         elif code == EVENT:
             j = op_index[step]
@@ -444,7 +452,10 @@ def run_kernel(imu_gyro, imu_accel, ev_kind, ev_imu, ev_val, ev_var, op, op_dt, 
                 counters[C_WIND_INITS] += 1
                 air_ok = True
                 continue
+            first = counters[C_DIAG]
             accepted = _fuse(x, P, t, kind, values, ev_var[j], gyro, s, w, gps_mon, rec)
+            if kind in (AIRSPEED, SIDESLIP):
+                adapt_wind_walk(wind_nis, t, diag_f, diag_i, first, counters[C_DIAG])
             if kind == AIRSPEED:
                 air_ok = accepted
     counters[C_OUTPUTS] = n_out
