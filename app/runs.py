@@ -18,6 +18,7 @@ import pandas as pd
 from app.workspace import Workspace
 from calib.calibration import Calibration
 from estimators.api import DEFAULT_ESTIMATORS
+from estimators.inputs.records import AUTO_HEADING, resolve_heading
 from estimators.warmup import COMPILE_MESSAGE, SUN_SOLVER, cache_state, prepare_compile
 from ingest.flightlog import FlightLog
 from workflows.replay import replay_log
@@ -40,7 +41,8 @@ class RunSettings:
     estimators : tuple of str
         Estimator names, in display order.
     heading : str
-        Absolute heading aid: ``"mag"``, ``"sun"`` or ``"mag+sun"``.
+        Absolute heading aid: ``"auto"`` (``"mag+sun"`` for a log with sun-device data, else ``"mag"``; a stored run
+        holds the one it used), ``"mag"``, ``"sun"`` or ``"mag+sun"``.
     noise : str
         :data:`DEFAULT_NOISE`, :data:`AUTO_CALIBRATION`, or the id of a calibration saved in the workspace.
     rate_hz : float
@@ -51,7 +53,7 @@ class RunSettings:
     """
 
     estimators: tuple[str, ...] = DEFAULT_ESTIMATORS
-    heading: str = "mag"
+    heading: str = AUTO_HEADING
     noise: str = DEFAULT_NOISE
     rate_hz: float = 50.0
     allow_untrusted: bool = False
@@ -218,7 +220,7 @@ def replay(log: FlightLog, settings: RunSettings, calibration: Calibration | Non
     clock = StageClock(progress, run_steps(len(names), store=False)) if own_clock else clock
     clock.order_lanes(names)
     cold: set[str] = set()
-    solver = (SUN_SOLVER,) if "sun" in settings.heading else ()
+    solver = (SUN_SOLVER,) if "sun" in resolve_heading(settings.heading, log.has("sun")) else ()
     if prepare_compile((*names, *solver)) is not None:  # (after dropping a stale cache numba would load)
         cold = {name for name in names if not cache_state((name, *solver)).warm}
     status = dict.fromkeys(names, "waiting")
@@ -264,7 +266,9 @@ def replay_and_store(workspace: Workspace, sha256: str, log: FlightLog, settings
                      calibration: Calibration | None = None, progress: Progress | None = None,
                      clock: StageClock | None = None) -> str:
     """:func:`replay`, then store the run in the workspace (atomically, stage :data:`SAVING`); returns its id.
-    ``clock`` (else a new one on ``progress``) measures every stage."""
+    ``clock`` (else a new one on ``progress``) measures every stage. The run is stored with the heading source it
+    used (``"auto"`` resolved for this log: :func:`estimators.inputs.records.resolve_heading`)."""
+    settings = dataclasses.replace(settings, heading=resolve_heading(settings.heading, log.has("sun")))
     clock = clock if clock is not None else StageClock(progress, run_steps(len(settings.estimators)))
     states, diagnostics, report = replay(log, settings, calibration, clock=clock)
     clock.start(SAVING, "Saving the run in the workspace ...")

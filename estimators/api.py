@@ -44,7 +44,7 @@ from estimators.core.results import DIAGNOSTIC_COLUMNS, STATE_COLUMNS, Estimator
 from estimators.direct.run import run as run_direct
 from estimators.indirect.run import run as run_indirect
 from estimators.inputs.build import build_replay_inputs
-from estimators.inputs.records import HEADING_SOURCES
+from estimators.inputs.records import AUTO_HEADING, HEADING_SOURCES
 from estimators.three_stage.run import run as run_three_stage
 from ingest.errors import InputError
 from ingest.flightlog import FlightLog
@@ -121,7 +121,7 @@ def parse_estimator_names(names: str | Sequence[str]) -> tuple[str, ...]:
 
 
 def run_estimators(flight_log: FlightLog, *, estimators: str | Sequence[str] = DEFAULT_ESTIMATORS,
-                   config: EstimatorConfig | None = None, heading: str = "mag", rate_hz: float = 50.0,
+                   config: EstimatorConfig | None = None, heading: str = AUTO_HEADING, rate_hz: float = 50.0,
                    sun_observations: pd.DataFrame | None = None,
                    configs: Mapping[str, EstimatorConfig] | None = None,
                    allow_untrusted: bool = False, threads: int | None = None,
@@ -136,9 +136,10 @@ def run_estimators(flight_log: FlightLog, *, estimators: str | Sequence[str] = D
         Names from :data:`ESTIMATORS` (``"a,b"`` accepted).
     config : EstimatorConfig, optional
         Noise, gates, initial sigmas, timing (defaults when None).
-    heading : {"mag", "sun", "mag+sun"}
+    heading : {"auto", "mag", "sun", "mag+sun"}
         Absolute heading source(s); ``sun`` needs the log's ``sun`` stream (photocell currents) or
-        ``sun_observations``.
+        ``sun_observations``; ``"auto"`` (default) is ``"mag+sun"`` with them, else ``"mag"``
+        (:func:`estimators.inputs.records.resolve_heading`).
     rate_hz : float
         Output rate [Hz] (epochs ``k / rate_hz`` on the log clock).
     sun_observations : pandas.DataFrame, optional

@@ -58,7 +58,7 @@ from estimators.consistency import (
 )
 from estimators.core.results import EstimatorRun
 from estimators.inputs.build import build_replay_inputs
-from estimators.inputs.records import SensorPlan
+from estimators.inputs.records import AUTO_HEADING, SensorPlan
 from estimators.three_stage.run import ThreeStageOptions
 from ingest.flightlog import FlightLog
 
@@ -289,7 +289,8 @@ def _pattern_search(problem: _Identification, best: _Candidate) -> _Candidate:
 
 
 def tune_estimator(log: FlightLog, cal: Calibration, estimator: str, *, budget: int = DEFAULT_BUDGET,
-                   heading: str = "mag", sun_observations=None, progress: TuneProgress | None = None) -> TuneResult:
+                   heading: str = AUTO_HEADING, sun_observations=None,
+                   progress: TuneProgress | None = None) -> TuneResult:
     """Identify the noise figures of one estimator on ``log``, starting from ``cal``'s (see the module docstring).
 
     Parameters
@@ -322,7 +323,7 @@ def tune_estimator(log: FlightLog, cal: Calibration, estimator: str, *, budget: 
 
 
 def tune_calibration(log: FlightLog, cal: Calibration, estimators: str | Sequence[str] = DEFAULT_ESTIMATORS, *,
-                     budget: int = DEFAULT_BUDGET, heading: str = "mag", sun_observations=None,
+                     budget: int = DEFAULT_BUDGET, heading: str = AUTO_HEADING, sun_observations=None,
                      threads: int = 2, progress: TuneProgress | None = None) -> Calibration:
     """``cal`` with ``tuning`` filled for every estimator (identified concurrently in ``threads`` threads;
     ``progress`` as :func:`tune_estimator`)."""

@@ -14,6 +14,7 @@ import pyarrow.csv
 
 from estimators.api import DEFAULT_ESTIMATORS, ReplayResult, parse_estimator_names, run_estimators
 from estimators.config import EstimatorConfig, config_from_calibration
+from estimators.inputs.records import AUTO_HEADING
 from ingest.files import atomic_write
 from ingest.flightlog import FlightLog
 
@@ -37,7 +38,7 @@ def estimator_configs(calibration: Calibration | None,
 
 
 def replay_log(log: FlightLog, *, estimators: str | Sequence[str] = DEFAULT_ESTIMATORS,
-               calibration: Calibration | None = None, heading: str = "mag", rate_hz: float = 50.0,
+               calibration: Calibration | None = None, heading: str = AUTO_HEADING, rate_hz: float = 50.0,
                allow_untrusted: bool = False,
                progress: Callable[[str, str], None] | None = None) -> ReplayResult:
     """Run ``estimators`` on ``log`` with the noise of ``calibration`` (None: the built-in noise).

@@ -10,6 +10,7 @@ from dataclasses import dataclass, field
 from calib.calibration import Calibration
 from estimators.api import DEFAULT_ESTIMATORS, ReplayResult
 from estimators.evaluation import Evaluation, evaluate
+from estimators.inputs.records import AUTO_HEADING
 from ingest.errors import InputError
 from ingest.flightlog import FlightLog
 from ingest.quality import QualityFinding, assess_input_quality
@@ -56,7 +57,7 @@ class FlightReport:
 
 
 def flight_report(log: FlightLog, *, calibration: Calibration | None = None, tune: bool = False,
-                  estimators: str | Sequence[str] = DEFAULT_ESTIMATORS, heading: str = "mag",
+                  estimators: str | Sequence[str] = DEFAULT_ESTIMATORS, heading: str = AUTO_HEADING,
                   rate_hz: float = REPORT_RATE_HZ, on_compile: CompileNotice | None = None) -> FlightReport:
     """Calibrate ``log`` (unless ``calibration`` is given; ``tune`` identifies the noise too), replay
     ``estimators`` with it at ``rate_hz`` [Hz] (output rate), evaluate them and export the autopilot parameters.

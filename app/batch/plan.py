@@ -17,7 +17,7 @@ from pathlib import Path
 from app.samples import with_companions
 from app.workspace import canonical_json, sanitize_name
 from estimators.api import DEFAULT_ESTIMATORS, parse_estimator_names
-from estimators.inputs.records import HEADING_SOURCES
+from estimators.inputs.records import AUTO_HEADING, HEADING_SOURCES
 from estimators.tuning import DEFAULT_BUDGET
 from ingest.errors import InputError
 
@@ -64,7 +64,8 @@ class BatchSettings:
     estimators : tuple of str
         Estimators replayed (and tuned).
     heading : str
-        Absolute heading aid of the replay (``mag``, ``sun``, ``mag+sun``).
+        Absolute heading aid of the replay (``auto``: ``mag+sun`` for a log with sun-device data, else ``mag``;
+        ``mag``, ``sun``, ``mag+sun``).
     rate_hz : float
         Output rate of the replay [Hz].
     force : bool
@@ -76,7 +77,7 @@ class BatchSettings:
     tune_budget: int = DEFAULT_BUDGET
     replay: bool = False
     estimators: tuple[str, ...] = DEFAULT_ESTIMATORS
-    heading: str = "mag"
+    heading: str = AUTO_HEADING
     rate_hz: float = 50.0
     force: bool = False
 

@@ -1,4 +1,4 @@
-"""``solarnav batch INPUT... [--calibrate [--tune]] [--replay] [--estimators a,b,c] [--heading mag|sun|mag+sun]
+"""``solarnav batch INPUT... [--calibrate [--tune]] [--replay] [--estimators a,b,c] [--heading auto|mag|sun|mag+sun]
 [--vehicles MAP.json] [--scheduler tcp://HOST:8786 | --workers N] -o OUTDIR``: process many logs on a Dask
 cluster, one task per log, and write per log its calibration, states and diagnostics (the files of ``calibrate``
 and ``replay``) plus the summary ``fleet.parquet`` / ``fleet.csv`` and the per-vehicle noise history.
@@ -23,7 +23,7 @@ from app.batch.run import Progress, batch_client, dashboard_text, run_batch, sch
 from app.batch.summary import fleet_table, write_summary
 from app.batch.task import ERROR
 from estimators.api import DEFAULT_ESTIMATORS, ESTIMATORS
-from estimators.inputs.records import HEADING_SOURCES
+from estimators.inputs.records import AUTO_HEADING, HEADING_SOURCES
 from estimators.tuning import DEFAULT_BUDGET
 from estimators.warmup import prepare_compile, warm_up
 from ingest.errors import InputError
@@ -45,7 +45,7 @@ def add_parser(subparsers) -> None:
                         help="re-run the estimators (with the log's calibration under --calibrate)")
     parser.add_argument("--estimators", default=",".join(DEFAULT_ESTIMATORS), metavar="A,B,C",
                         help=f"comma-separated subset of {', '.join(ESTIMATORS)} (default: all)")
-    parser.add_argument("--heading", choices=HEADING_SOURCES, default="mag", help="replay heading source")
+    parser.add_argument("--heading", choices=HEADING_SOURCES, default=AUTO_HEADING, help="replay heading source")
     parser.add_argument("--rate-hz", type=float, default=50.0, metavar="HZ", help="replay output rate")
     parser.add_argument("--force", action="store_true", help="replay logs whose inputs are refused")
     parser.add_argument("--vehicles", metavar="MAP.json",

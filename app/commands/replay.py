@@ -1,5 +1,5 @@
 """``solarnav replay LOG.ulg [--sun SUN.csv] [--device DEV.json] [--calib CALIB.json] [--estimators a,b,c]
-[--rate-hz 50] [--heading mag|sun|mag+sun] [--force] [--float32] [--details] -o OUT.parquet|OUT.csv
+[--rate-hz 50] [--heading auto|mag|sun|mag+sun] [--force] [--float32] [--details] -o OUT.parquet|OUT.csv
 [--diagnostics DIAG.parquet|DIAG.csv]``:
 re-run the estimators on a log and write their states (one row per estimator per output epoch).
 
@@ -17,7 +17,7 @@ from pathlib import Path
 
 from estimators.api import DEFAULT_ESTIMATORS, ESTIMATORS, ReplayResult, parse_estimator_names, quality_warnings
 from estimators.consistency import turbulence_intensity_m_s
-from estimators.inputs.records import HEADING_SOURCES
+from estimators.inputs.records import AUTO_HEADING, HEADING_SOURCES, resolve_heading
 from estimators.warmup import SUN_SOLVER, compile_side_by_side, prepare_compile
 from ingest.errors import InputError
 from ingest.log_formats import load_flight_log
@@ -36,8 +36,8 @@ def add_parser(subparsers) -> None:
     parser.add_argument("--estimators", default=",".join(DEFAULT_ESTIMATORS), metavar="A,B,C",
                         help=f"comma-separated subset of {', '.join(ESTIMATORS)} (default: all)")
     parser.add_argument("--rate-hz", type=float, default=50.0, metavar="HZ", help="output rate (default 50 Hz)")
-    parser.add_argument("--heading", choices=HEADING_SOURCES, default="mag",
-                        help="absolute heading source (default mag; sun needs --sun)")
+    parser.add_argument("--heading", choices=HEADING_SOURCES, default=AUTO_HEADING,
+                        help="absolute heading source (default auto: mag+sun with --sun, else mag; sun needs --sun)")
     parser.add_argument("--force", action="store_true",
                         help="replay even a log whose inputs are refused (every report carries the warning)")
     parser.add_argument("--float32", action="store_true",
@@ -67,7 +67,7 @@ def run(args: argparse.Namespace) -> int:
     if args.sun is not None:
         device = load_sun_device(args.device) if args.device is not None else None
         log = with_sun(log, args.sun, device=device)
-    announce_compile([*names, *([SUN_SOLVER] if "sun" in args.heading else [])])
+    announce_compile([*names, *([SUN_SOLVER] if "sun" in resolve_heading(args.heading, log.has("sun")) else [])])
     result = replay_log(log, estimators=names, calibration=calibration, heading=args.heading, rate_hz=args.rate_hz,
                         allow_untrusted=args.force)
     narrow = as_float32 if args.float32 else (lambda frame: frame)

@@ -1,8 +1,8 @@
-"""``solarnav report LOG [--sun SUN.csv] [--device DEV.json] [--calib CALIB.json] [--tune] [--heading mag|sun|mag+sun]
--o REPORT.html``: one self-contained HTML flight report (works offline): the flight, its streams and input findings,
-the calibration (``--calib``, else calibrated from the flight; ``--tune`` identifies the noise too), each
-estimator's verdict, the comparison with the truth or the onboard estimate, the track and the exported autopilot
-parameters."""
+"""``solarnav report LOG [--sun SUN.csv] [--device DEV.json] [--calib CALIB.json] [--tune] [--heading
+auto|mag|sun|mag+sun] -o REPORT.html``: one self-contained HTML flight report (works offline): the flight, its
+streams and input findings, the calibration (``--calib``, else calibrated from the flight; ``--tune`` identifies the
+noise too), each estimator's verdict, the comparison with the truth or the onboard estimate, the track and the
+exported autopilot parameters."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from estimators.inputs.records import HEADING_SOURCES
+from estimators.inputs.records import AUTO_HEADING, HEADING_SOURCES
 from ingest.errors import InputError
 from ingest.files import atomic_write_text
 from ingest.log_formats import load_flight_log
@@ -25,7 +25,7 @@ def add_parser(subparsers) -> None:
     parser.add_argument("--device", metavar="DEV.json", help="sun-device geometry")
     parser.add_argument("--calib", metavar="CALIB.json", help="use this calibration instead of calibrating")
     parser.add_argument("--tune", action="store_true", help="identify the noise from the flight's innovations")
-    parser.add_argument("--heading", choices=HEADING_SOURCES, default="mag", help="absolute heading source")
+    parser.add_argument("--heading", choices=HEADING_SOURCES, default=AUTO_HEADING, help="absolute heading source")
     parser.add_argument("-o", "--output", required=True, metavar="REPORT.html", help="the report to write")
 
 

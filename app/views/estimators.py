@@ -11,7 +11,7 @@ from streamlit.runtime.scriptrunner import add_script_run_ctx, get_script_run_ct
 from app import adapters, comparison, figures, runs, session, tables, time_range
 from app.notes import PROBLEM, note_text, run_notes
 from estimators.api import DEFAULT_ESTIMATORS, ESTIMATORS, UNTRUSTED_PREFIX
-from estimators.inputs.records import HEADING_SOURCES
+from estimators.inputs.records import AUTO_HEADING, resolve_heading
 
 #: The run shown (the baseline of several): the Map page opens on it.
 RUN_KEY = "est_run"
@@ -23,7 +23,7 @@ MAX_RUNS = 4
 RANGE_KEY = "est_time_range"
 #: (run id, measured stages) of the last run made on this page.
 TIMINGS_KEY = "est_last_run_timings"
-HEADING_LABELS = {"mag": "magnetometer", "sun": "sun vector", "mag+sun": "both"}
+HEADING_LABELS = {"mag": "magnetometer", "sun": "sun vector", "mag+sun": "both (default with sun data)"}
 
 log = session.require_log()
 root, sha256 = session.root(), session.selected_sha256()
@@ -49,7 +49,8 @@ noise_labels = {runs.DEFAULT_NOISE: "default R (datasheet noise)",
                 runs.AUTO_CALIBRATION: "calibrated R (automatic calibration of this log)",
                 **{calib_id: f"saved: {name}" for calib_id, name in zip(saved_calibrations["calib_id"],
                                                                     saved_calibrations["name"], strict=True)}}
-headings = HEADING_SOURCES if log.has("sun") else ("mag",)
+# the default first: both with sun-device data (resolve_heading), else the magnetometer alone
+headings = (resolve_heading(AUTO_HEADING, True), "mag", "sun") if log.has("sun") else ("mag",)
 with st.form("run_form"):
     chosen = st.multiselect("Estimators", list(ESTIMATORS), default=list(DEFAULT_ESTIMATORS), key="est_names")
     left, right = st.columns(2)

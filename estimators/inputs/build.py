@@ -43,6 +43,7 @@ from estimators.config import PX4_DEFAULT_GPS_DELAY_MS, EstimatorConfig
 from estimators.inputs.alignment import initial_alignment
 from estimators.inputs.records import (
     AIRSPEED,
+    AUTO_HEADING,
     BARO,
     GPS_POS,
     GPS_VEL,
@@ -59,6 +60,7 @@ from estimators.inputs.records import (
     Origin,
     ReplayInputs,
     SensorPlan,
+    resolve_heading,
 )
 from estimators.inputs.sun_events import sun_heading_events
 from ingest.errors import InputError
@@ -95,7 +97,7 @@ MAX_EPOCHS_FIXED = 1_000_000
 
 
 def build_replay_inputs(flight_log: FlightLog, config: EstimatorConfig | None = None, *, rate_hz: float = 50.0,
-                        heading: str = "mag", sun_observations: pd.DataFrame | None = None) -> ReplayInputs:
+                        heading: str = AUTO_HEADING, sun_observations: pd.DataFrame | None = None) -> ReplayInputs:
     """Prepare the kernel inputs of one log (validated once, here).
 
     Parameters
@@ -106,8 +108,9 @@ def build_replay_inputs(flight_log: FlightLog, config: EstimatorConfig | None = 
         Settings (defaults when None).
     rate_hz : float
         Output rate [Hz]; output epochs are ``k / rate_hz`` on the log clock.
-    heading : {"mag", "sun", "mag+sun"}
-        Absolute heading source(s).
+    heading : {"auto", "mag", "sun", "mag+sun"}
+        Absolute heading source(s); ``"auto"`` (default): ``"mag+sun"`` with sun-device data or
+        ``sun_observations``, else ``"mag"`` (:func:`estimators.inputs.records.resolve_heading`).
     sun_observations : pandas.DataFrame, optional
         Sun-vector observations indexed by ``time_s`` [s] with columns ``sun_x, sun_y, sun_z`` (unit vector in
         body FRD), ``sun_n, sun_e, sun_d`` (unit vector towards the sun in NED) and ``sigma_rad`` (direction
@@ -128,6 +131,7 @@ def build_replay_inputs(flight_log: FlightLog, config: EstimatorConfig | None = 
         raise InputError(f"output rate must be in (0, 1000] Hz, got {rate_hz!r}", field="rate_hz")
     if heading not in HEADING_SOURCES:
         raise InputError(f"heading must be one of {', '.join(HEADING_SOURCES)}, got {heading!r}", field="heading")
+    heading = resolve_heading(heading, sun_observations is not None or flight_log.has("sun"))
     notes = _Notes()
     imu = _imu_samples(flight_log, config, notes.warnings)
     t_start, t_end = float(imu.time_s[0]), float(imu.time_s[-1])

@@ -44,8 +44,20 @@ COMPONENT_NAMES = (("alt",), ("tas",), ("v",), ("n", "e", "d"), ("n", "e", "d", 
 N_EVENT_VALUES = 6
 #: Pseudo-measurements are never gated.
 PSEUDO_KINDS = frozenset({SIDESLIP, ZERO_VELOCITY})
+#: The default heading choice: the magnetometer and the sun vector for a log with sun-device data (or solved sun
+#: vectors), else the magnetometer (:func:`resolve_heading`; docs/estimators.md, 'Heading source by default').
+AUTO_HEADING = "auto"
 #: Valid ``heading`` choices.
-HEADING_SOURCES = ("mag", "sun", "mag+sun")
+HEADING_SOURCES = (AUTO_HEADING, "mag", "sun", "mag+sun")
+
+
+def resolve_heading(heading: str, has_sun: bool) -> str:
+    """The heading source(s) ``heading`` stands for: :data:`AUTO_HEADING` is ``"mag+sun"`` when ``has_sun`` (the
+    sun vector cannot be corrupted by the currents and iron that disturb a magnetometer, seed paper 003; the
+    magnetometer keeps the heading where the sun is not seen), else ``"mag"``; any other choice is itself."""
+    if heading != AUTO_HEADING:
+        return heading
+    return "mag+sun" if has_sun else "mag"
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,36 @@
+"""The default heading source (docs/estimators.md, 'Heading source by default'): ``auto`` is the magnetometer and
+the sun vector for a log with sun-device data, the magnetometer alone without; explicit choices are kept."""
+
+from __future__ import annotations
+
+import pytest
+
+from app.samples import SAMPLE_DIR
+from estimators.inputs.build import build_replay_inputs
+from estimators.inputs.records import AUTO_HEADING, HEADING_SOURCES, resolve_heading
+from ingest.log_formats import load_flight_log
+from ingest.sun_log import load_sun_device, with_sun
+
+
+def test_auto_is_both_with_the_sun_and_the_magnetometer_without():
+    assert HEADING_SOURCES[0] == AUTO_HEADING
+    assert resolve_heading(AUTO_HEADING, True) == "mag+sun"
+    assert resolve_heading(AUTO_HEADING, False) == "mag"
+    for explicit in ("mag", "sun", "mag+sun"):
+        assert resolve_heading(explicit, True) == explicit and resolve_heading(explicit, False) == explicit
+
+
+@pytest.fixture(scope="module")
+def sample_log():
+    return load_flight_log(SAMPLE_DIR / "failed_cell.ulg")
+
+
+def test_the_default_replay_inputs_fuse_the_sun_when_the_log_has_it(sample_log):
+    without = build_replay_inputs(sample_log).plan
+    assert "mag" in without.used and "sun" not in without.used and not without.has_sun
+    sunny = with_sun(sample_log, SAMPLE_DIR / "failed_cell_sun.csv",
+                     device=load_sun_device(SAMPLE_DIR / "failed_cell_device.json"))
+    both = build_replay_inputs(sunny).plan
+    assert {"mag", "sun"} <= set(both.used)
+    only_mag = build_replay_inputs(sunny, heading="mag").plan
+    assert "sun" not in only_mag.used and not only_mag.has_sun  # an explicit choice is kept
