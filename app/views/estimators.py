@@ -12,6 +12,7 @@ from app import adapters, comparison, figures, runs, session, tables, time_range
 from app.notes import PROBLEM, note_text, run_notes
 from estimators.api import DEFAULT_ESTIMATORS, ESTIMATORS, UNTRUSTED_PREFIX
 from estimators.inputs.records import AUTO_HEADING, resolve_heading
+from ingest.errors import InputError
 
 #: The run shown (the baseline of several): the Map page opens on it.
 RUN_KEY = "est_run"
@@ -74,10 +75,16 @@ if submitted:
 
         stage_clock = runs.StageClock(show, runs.run_steps(len(settings.estimators),
                                                            calibrate=noise != runs.DEFAULT_NOISE))
-        with session.input_errors():
-            if noise != runs.DEFAULT_NOISE:
-                stage_clock.start("calibrating", "Calibrating the sensors for R ...")
+        if noise != runs.DEFAULT_NOISE:
+            stage_clock.start("calibrating", "Calibrating the sensors for R ...")
+        try:
             calibration = adapters.run_calibration(root, sha256, noise)
+        except InputError as exc:  # the log is fine; it has no segment the automatic calibration can use
+            bar.empty()
+            st.error(f"No automatic calibration of this log ({exc}). Pick a window on the **Calibration** page, save "
+                     "it there, and choose it under *Measurement noise*.")
+            st.stop()
+        with session.input_errors():
             run_id = runs.replay_and_store(workspace, sha256, log, settings, calibration, clock=stage_clock)
         bar.empty()
         st.session_state[TIMINGS_KEY] = (run_id, stage_clock.summary())
