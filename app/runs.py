@@ -278,7 +278,10 @@ def replay_and_store(workspace: Workspace, sha256: str, log: FlightLog, settings
 
 
 def find_run(workspace: Workspace, sha256: str, settings: RunSettings) -> str | None:
-    """Id of the newest stored run of the log made with exactly ``settings``, or None."""
+    """Id of the newest stored run of the log made with exactly ``settings`` (``"auto"`` heading as
+    :func:`replay_and_store` resolves it for this log), or None."""
+    entry = workspace.get_log(sha256)
+    settings = dataclasses.replace(settings, heading=resolve_heading(settings.heading, bool(entry and entry.has_sun)))
     runs = workspace.list_runs(sha256)
     for run_id, text in zip(runs["run_id"], runs["settings_json"], strict=True):
         if RunSettings.from_json_dict(json.loads(text)) == settings:

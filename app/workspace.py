@@ -235,7 +235,7 @@ def default_run_name(log_name: str, settings: dict, created_utc: str) -> str:
     than the magnetometer, fewer estimators than the default three, a rate other than 50 Hz and an untrusted replay
     are added when set (``paper · calib 3f2a1b · mag+sun · indirect · 25 Hz · untrusted · 14:05``)."""
     parts = [noise_source(settings.get("noise"))]
-    if settings.get("heading") not in (None, "", "mag"):
+    if settings.get("heading") not in (None, "", "mag", "auto"):
         parts.append(str(settings["heading"]))
     estimators = list(settings.get("estimators", ()))
     if 0 < len(estimators) < _DEFAULT_RUN_ESTIMATORS:

@@ -279,4 +279,5 @@ def test_estimators_page_compares_two_stored_runs(tmp_path: Path, monkeypatch):
     assert innovations["layout"]["title"]["text"] == "three_stage: baro innovations"
     assert {f"h: three_stage · {names[run]}" for run in (default_run, calibrated_run)} == {
         trace["name"] for trace in nis["data"]}
-    assert len(at.get("download_button")) == 8  # four per run
+    downloads = [button.label for button in at.get("download_button")]
+    assert len(downloads) == 10 and downloads.count("Flight report (.html)") == 2, downloads  # five per run

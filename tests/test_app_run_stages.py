@@ -13,6 +13,9 @@ import pytest
 
 from app import runs
 
+#: A stand-in log without sun-device data (the replay itself is replaced in these tests).
+NO_SUN_LOG = SimpleNamespace(has=lambda stream: False)
+
 #: Fake seconds each stage of the stand-in takes: inputs checked, inputs built (per estimator), diagnostics, saving;
 #: and each estimator's filter, the two running side by side.
 CHECK_S, PREPARE_S, DIAGNOSTICS_S, SAVE_S = 0.5, 1.0, 2.0, 4.0
@@ -71,7 +74,7 @@ def test_every_stage_is_announced_when_it_starts_and_measured(fake):
     reports = []
     settings = runs.RunSettings(estimators=("three_stage", "full_state_direct"))
     clock = runs.StageClock(lambda fraction, text: reports.append((fraction, text)), runs.run_steps(2))
-    assert runs.replay_and_store(fake, "sha", None, settings, clock=clock) == "run-1"
+    assert runs.replay_and_store(fake, "sha", NO_SUN_LOG, settings, clock=clock) == "run-1"
     assert [text for _, text in reports] == [
         "Checking the inputs ...", "Preparing the inputs of three_stage ...",
         "Preparing the inputs of full_state_direct ...",
@@ -98,7 +101,7 @@ def test_a_replay_on_its_own_ends_with_done_and_a_cold_filter_says_it_compiles_u
     monkeypatch.setattr(runs, "prepare_compile", lambda names: "compiling")
     monkeypatch.setattr(runs, "cache_state", lambda names: SimpleNamespace(warm=False))
     texts = []
-    runs.replay(None, runs.RunSettings(estimators=("three_stage",)), progress=lambda f, text: texts.append(text))
+    runs.replay(NO_SUN_LOG, runs.RunSettings(estimators=("three_stage",)), progress=lambda f, text: texts.append(text))
     compiling = f"{runs.COMPILE_MESSAGE.capitalize()} for three_stage"
     assert texts == [f"{compiling}: checking the inputs ...", f"{compiling}: preparing the inputs of three_stage ...",
                      f"{compiling}: running the filters: three_stage running", "Running the filters: three_stage done",

@@ -80,7 +80,7 @@ def test_the_outputs_and_summary_equal_per_log_calibrate_and_replay_runs(batch, 
     log_path = directory / f"{flight_name(1)}.ulg"
     sun, device = (directory / f"{flight_name(1)}_{suffix}" for suffix in ("sun.csv", "device.json"))
     calib, states, diagnostics = tmp_path / "calib.json", tmp_path / "states.parquet", tmp_path / "diag.parquet"
-    assert main(["calibrate", str(log_path), "-o", str(calib)]) == 0
+    assert main(["calibrate", str(log_path), "--sun", str(sun), "--device", str(device), "-o", str(calib)]) == 0
     assert main(["replay", str(log_path), "--sun", str(sun), "--device", str(device), "--calib", str(calib),
                  "-o", str(states), "--diagnostics", str(diagnostics)]) == 0
     log = load_flight_log(log_path)

@@ -34,3 +34,17 @@ def test_the_default_replay_inputs_fuse_the_sun_when_the_log_has_it(sample_log):
     assert {"mag", "sun"} <= set(both.used)
     only_mag = build_replay_inputs(sunny, heading="mag").plan
     assert "sun" not in only_mag.used and not only_mag.has_sun  # an explicit choice is kept
+
+
+def test_calibrate_takes_the_sun_device_log_as_replay_and_report_do(tmp_path, capsys):
+    """``calibrate --sun`` attaches the sun so that its replays (tau, in-flight bias, identification) head with it,
+    as ``replay`` and ``report`` do; ``--device`` alone is refused before any file is read."""
+    from app.cli import EXIT_BAD_INPUT, main
+
+    out = tmp_path / "calib.json"
+    assert main(["calibrate", str(SAMPLE_DIR / "failed_cell.ulg"), "--device",
+                 str(SAMPLE_DIR / "failed_cell_device.json"), "-o", str(out)]) == EXIT_BAD_INPUT
+    assert "give --sun too" in capsys.readouterr().err and not out.exists()
+    assert main(["calibrate", str(SAMPLE_DIR / "failed_cell.ulg"), "--sun", str(SAMPLE_DIR / "failed_cell_sun.csv"),
+                 "--device", str(SAMPLE_DIR / "failed_cell_device.json"), "-o", str(out)]) == 0
+    assert out.exists()

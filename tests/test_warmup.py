@@ -11,10 +11,14 @@ import os
 import subprocess
 import sys
 import textwrap
+from types import SimpleNamespace
 
 import pytest
 
 from tests.conftest import REPO_DIR
+
+#: A stand-in log without sun-device data (the replay itself is replaced in these tests).
+NO_SUN_LOG = SimpleNamespace(has=lambda stream: False)
 
 SAMPLE = REPO_DIR / "sample_logs" / "paper.ulg"
 
@@ -165,6 +169,6 @@ def test_dashboard_progress_says_compiling_only_for_a_cold_filter(monkeypatch):
         monkeypatch.setattr(runs, "prepare_compile", lambda names, warm=warm: None if warm else "compiling")
         monkeypatch.setattr(runs, "cache_state", lambda names, warm=warm: CacheState(warm=warm))
         with pytest.raises(_Stop):
-            runs.replay(None, runs.RunSettings(), progress=lambda fraction, text: texts.append(text))
+            runs.replay(NO_SUN_LOG, runs.RunSettings(), progress=lambda fraction, text: texts.append(text))
     assert texts == ["Compiling the estimators (first run only) for three_stage, full_state_direct, "
                      "full_state_indirect: checking the inputs ...", "Checking the inputs ..."]

@@ -1,9 +1,9 @@
-"""``solarnav calibrate LOG [--start-s A --end-s B | --segment auto] [--cutoff-hz F] [--numtaps N] [--tau X|auto]
-[--tau-method likelihood|nis] [--noise sigma|eta] [--tune [--tune-budget N] [--estimators a,b,c]] -o CALIB.json
-[--px4-params OUT.params] [--ardupilot-parm OUT.parm] [--px4-replay-params replay_params.txt]
-[--ardupilot-replay-params OUT.param]``: sensor noise, biases, Allan figures, R and tau from a flight
-log, the filter figures they give (each with its source), optionally the noise identified per estimator from the
-flight's own innovations, written as CALIB.json (and optionally as PX4 EKF2 and ArduPilot EKF3 noise parameters).
+"""``solarnav calibrate LOG [--sun SUN.csv [--device DEV.json]] [--start-s A --end-s B | --segment auto] [--cutoff-hz F]
+[--numtaps N] [--tau X|auto] [--tau-method likelihood|nis] [--noise sigma|eta] [--tune [--tune-budget N]
+[--estimators a,b,c]] -o CALIB.json [--px4-params OUT.params] [--ardupilot-parm OUT.parm] [--px4-replay-params
+replay_params.txt] [--ardupilot-replay-params OUT.param]``: sensor noise, biases, Allan figures, R and tau from a
+flight log, the filter figures they give (each with its source), optionally the noise identified per estimator from
+the flight's own innovations, written as CALIB.json (and optionally as PX4 EKF2 and ArduPilot EKF3 noise parameters).
 
 ``--tau auto`` replays the three-stage estimator (whose stage 1 fuses the accelerometer) once per candidate tau
 with the calibrated noise, and keeps the tau that maximises the likelihood of its body-y accelerometer innovations
@@ -20,6 +20,7 @@ import sys
 
 import numpy as np
 
+from app.commands.sun_options import add_sun_arguments, load_log_with_sun
 from calib.calibration import IMU_SENSORS, NOISE_CHOICES, Calibration, FirSettings
 from calib.segments import user_segment
 from calib.tables import table4
@@ -27,7 +28,6 @@ from calib.tau import DEFAULT_TAU, TAU_METHODS, TauSelection, user_tau
 from estimators.api import DEFAULT_ESTIMATORS, parse_estimator_names
 from estimators.tuning import DEFAULT_BUDGET
 from ingest.errors import InputError
-from ingest.log_formats import load_flight_log
 from workflows.calibration import calibrate_log
 from workflows.exports import write_calibration_files
 
@@ -37,6 +37,7 @@ def add_parser(subparsers) -> None:
     parser = subparsers.add_parser("calibrate", help="calibrate sensor noise and bias from a flight log",
                                    description=__doc__)
     parser.add_argument("log", metavar="LOG", help="PX4 ULog file")
+    add_sun_arguments(parser)
     parser.add_argument("--start-s", type=float, metavar="A", help="segment start on the log clock [s]")
     parser.add_argument("--end-s", type=float, metavar="B", help="segment end on the log clock [s]")
     parser.add_argument("--segment", choices=["auto"],
@@ -74,7 +75,7 @@ def run(args: argparse.Namespace) -> int:
     _check_segment_options(args)
     if args.tune and args.tune_budget < 2:
         raise InputError(f"must be at least 2 replays, got {args.tune_budget}", field="--tune-budget")
-    log = load_flight_log(args.log)
+    log = load_log_with_sun(args)  # the sun heads the replays of tau, in-flight bias and identification
     segment = None if args.start_s is None else user_segment(log, args.start_s, args.end_s)
     cal = calibrate_log(log, segment=segment, fir=_imu_filter(args), noise=args.noise, tau=tau,
                         tau_method=args.tau_method,

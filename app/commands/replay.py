@@ -15,13 +15,12 @@ import math
 import sys
 from pathlib import Path
 
+from app.commands.sun_options import add_sun_arguments, check_sun_arguments, load_log_with_sun
 from estimators.api import DEFAULT_ESTIMATORS, ESTIMATORS, ReplayResult, parse_estimator_names, quality_warnings
 from estimators.consistency import turbulence_intensity_m_s
 from estimators.inputs.records import AUTO_HEADING, HEADING_SOURCES, resolve_heading
 from estimators.warmup import SUN_SOLVER, compile_side_by_side, prepare_compile
 from ingest.errors import InputError
-from ingest.log_formats import load_flight_log
-from ingest.sun_log import load_sun_device, with_sun
 from workflows.replay import TABLE_FORMATS, as_float32, replay_log, write_table
 
 
@@ -30,8 +29,7 @@ def add_parser(subparsers) -> None:
     parser = subparsers.add_parser("replay", help="re-run the estimators on a log and write their states",
                                    description=__doc__)
     parser.add_argument("log", metavar="LOG.ulg", help="PX4 ULog file")
-    parser.add_argument("--sun", metavar="SUN.csv", help="sun-device CSV (photocell currents) to attach")
-    parser.add_argument("--device", metavar="DEV.json", help="sun-device geometry (tilt, azimuths, mounting)")
+    add_sun_arguments(parser)
     parser.add_argument("--calib", metavar="CALIB.json", help="noise settings from `solarnav calibrate`")
     parser.add_argument("--estimators", default=",".join(DEFAULT_ESTIMATORS), metavar="A,B,C",
                         help=f"comma-separated subset of {', '.join(ESTIMATORS)} (default: all)")
@@ -56,17 +54,13 @@ def run(args: argparse.Namespace) -> int:
     outputs = [checked_table_path(args.output, "--output")]
     if args.diagnostics is not None:
         outputs.append(checked_table_path(args.diagnostics, "--diagnostics"))
-    if args.device is not None and args.sun is None:
-        raise InputError("--device describes the sun-device log: give --sun too")
+    check_sun_arguments(args)
     calibration = None
     if args.calib is not None:
         from calib.export import read_calibration  # deferred: the calibration stack is slow to import
 
         calibration = read_calibration(args.calib)
-    log = load_flight_log(args.log)
-    if args.sun is not None:
-        device = load_sun_device(args.device) if args.device is not None else None
-        log = with_sun(log, args.sun, device=device)
+    log = load_log_with_sun(args)
     announce_compile([*names, *([SUN_SOLVER] if "sun" in resolve_heading(args.heading, log.has("sun")) else [])])
     result = replay_log(log, estimators=names, calibration=calibration, heading=args.heading, rate_hz=args.rate_hz,
                         allow_untrusted=args.force)

@@ -10,19 +10,17 @@ import argparse
 import sys
 from pathlib import Path
 
+from app.commands.sun_options import add_sun_arguments, load_log_with_sun
 from estimators.inputs.records import AUTO_HEADING, HEADING_SOURCES
 from ingest.errors import InputError
 from ingest.files import atomic_write_text
-from ingest.log_formats import load_flight_log
-from ingest.sun_log import load_sun_device, with_sun
 
 
 def add_parser(subparsers) -> None:
     """Register the ``report`` sub-parser."""
     parser = subparsers.add_parser("report", help="one self-contained HTML flight report", description=__doc__)
     parser.add_argument("log", metavar="LOG", help="flight log (.ulg or .bin)")
-    parser.add_argument("--sun", metavar="SUN.csv", help="sun-device CSV (photocell currents) to attach")
-    parser.add_argument("--device", metavar="DEV.json", help="sun-device geometry")
+    add_sun_arguments(parser)
     parser.add_argument("--calib", metavar="CALIB.json", help="use this calibration instead of calibrating")
     parser.add_argument("--tune", action="store_true", help="identify the noise from the flight's innovations")
     parser.add_argument("--heading", choices=HEADING_SOURCES, default=AUTO_HEADING, help="absolute heading source")
@@ -39,11 +37,7 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"must end in .html, got {args.output!r}", field="--output")
     if not output.parent.exists():
         raise InputError(f"directory {str(output.parent)!r} does not exist", field="--output")
-    if args.device is not None and args.sun is None:
-        raise InputError("--device describes the sun-device log: give --sun too")
-    log = load_flight_log(args.log)
-    if args.sun is not None:
-        log = with_sun(log, args.sun, device=load_sun_device(args.device) if args.device is not None else None)
+    log = load_log_with_sun(args)
     calibration = None
     if args.calib is not None:
         from calib.export import read_calibration
