@@ -3,7 +3,7 @@ calm air, continuous turbulence that moves the aircraft, discrete 1-cosine gusts
 disturbed magnetometer, two sensor grades, fresh seeds), each replayed with the datasheet defaults and with the noise
 identified from the flight, every Table-2 metric against the truth and against the paper's row.
 
-    .venv/bin/python benchmarks/scenario_matrix.py [--missions a,b,...] [--no-identify] [-o OUT.json]
+    .venv/bin/python -m benchmarks.scenario_matrix [--missions a,b,...] [--no-identify] [--no-sun] [-o OUT.json]
 
 Prints one table per mission (rows: estimator x setting, columns: Table-2 metrics, the paper's row below), then the
 verdicts the issue asks for: identified <= 1.05x defaults on every metric, full-state wind <= 0.35 m/s and
@@ -27,6 +27,7 @@ from benchmarks.calibration_loop import _FINE_SENSORS, _ROUGH_SENSORS
 from estimators.evaluation import PAPER_TABLE_2, rms_errors
 from ingest.errors import InputError
 from ingest.log_formats import load_flight_log
+from ingest.sun_log import load_sun_device, with_sun
 from sim.kinematics import Site
 from sim.mission import ChangeAltitude, Cruise, HandLaunch, Land, Mission, Still, Turn
 from sim.px4_export import write_outputs
@@ -115,10 +116,15 @@ def cases() -> dict[str, Case]:
             for k, (name, site, air, wind, sensors) in enumerate(rows)}
 
 
-def evaluate(case: Case, *, identify: bool, workdir: Path) -> dict:
-    """RMS errors per setting and estimator of one mission, and the wall times."""
+def evaluate(case: Case, *, identify: bool, workdir: Path, sun: bool = True) -> dict:
+    """RMS errors per setting and estimator of one mission, and the wall times; with ``sun`` the mission's sun-device
+    log is attached as a user gives it (the default heading then fuses it: docs/estimators.md, 'Heading source by
+    default')."""
     result = simulate(case.scenario, np.random.default_rng(case.seed), seed=case.seed)
-    log = load_flight_log(write_outputs(result, workdir / case.scenario.name)["ulog"])
+    paths = write_outputs(result, workdir / case.scenario.name)
+    log = load_flight_log(paths["ulog"])
+    if sun:
+        log = with_sun(log, paths["sun_csv"], device=load_sun_device(paths["device_json"]))
     tables, timings = {}, {}
     started = time.perf_counter()
     tables["datasheet"] = rms_errors(replay_log(log).states, log).loc[:, list(METRICS)]
@@ -162,6 +168,7 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--missions", default=None, help="comma-separated mission names (default: all 16)")
     parser.add_argument("--no-identify", action="store_true", help="the datasheet defaults only")
+    parser.add_argument("--no-sun", action="store_true", help="without the missions' sun-device logs")
     parser.add_argument("-o", "--output", default=None, help="JSON file of every number")
     args = parser.parse_args(argv)
     available = cases()
@@ -170,7 +177,7 @@ def main(argv=None) -> int:
     with tempfile.TemporaryDirectory() as tmp:
         for name in names:
             case = available[name]
-            out = evaluate(case, identify=not args.no_identify, workdir=Path(tmp))
+            out = evaluate(case, identify=not args.no_identify, workdir=Path(tmp), sun=not args.no_sun)
             rows = [{"estimator": estimator, "setting": setting, **row.to_dict()}
                     for setting, table in out["tables"].items() for estimator, row in table.iterrows()]
             rows += [{"estimator": estimator, "setting": "paper Table 2", **{m: PAPER_TABLE_2[estimator][m]
