@@ -628,6 +628,7 @@ def test_two_runs_of_a_real_log_read_at_a_glance_in_a_browser(page, real_logs_di
     page.get_by_role("button", name="Save in the workspace").click()
     _settle(page)
     _open(page, "Estimators")
+    assert not page.get_by_text("calibrated R (automatic calibration of this log)").count()  # no steady segment
     page.get_by_text(re.compile(r"^saved: ")).first.click()
     page.get_by_role("button", name="Run estimators").click()
     page.get_by_text("Baseline run").wait_for(timeout=RUN_MS)  # the calibrated run is added to the shown runs

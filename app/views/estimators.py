@@ -46,8 +46,10 @@ for finding in findings:
 # ------------------------------------------------------------------ run form
 saved_calibrations = workspace.list_calibrations(sha256)
 saved = list(saved_calibrations["calib_id"])
+# the automatic calibration needs a stationary or steady segment (calib.segments.auto_segments): offered only then
+automatic = not adapters.candidate_segments(root, sha256).empty
 noise_labels = {runs.DEFAULT_NOISE: "default R (datasheet noise)",
-                runs.AUTO_CALIBRATION: "calibrated R (automatic calibration of this log)",
+                **({runs.AUTO_CALIBRATION: "calibrated R (automatic calibration of this log)"} if automatic else {}),
                 **{calib_id: f"saved: {name}" for calib_id, name in zip(saved_calibrations["calib_id"],
                                                                     saved_calibrations["name"], strict=True)}}
 # the default first: both with sun-device data (resolve_heading), else the magnetometer alone
@@ -57,7 +59,9 @@ with st.form("run_form"):
     left, right = st.columns(2)
     heading = left.radio("Heading aid", headings, format_func=HEADING_LABELS.get, horizontal=True,
                          key="est_heading", help=None if log.has("sun") else "the log has no sun-device data")
-    noise = right.radio("Measurement noise", list(noise_labels), format_func=noise_labels.get, key="est_noise")
+    noise = right.radio("Measurement noise", list(noise_labels), format_func=noise_labels.get, key="est_noise",
+                        help=None if automatic else "No automatic calibration: the log has no stationary or steady "
+                        "segment. Pick a window on the Calibration page and save it to calibrate R.")
     force = st.checkbox("Run despite refused inputs", value=False, key="est_force", disabled=not refused,
                         help="replay a log whose inputs the estimators refuse (solarnav replay --force)")
     submitted = st.form_submit_button("Run estimators", type="primary")
