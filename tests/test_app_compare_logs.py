@@ -171,6 +171,8 @@ def test_the_parameter_view_of_two_bundled_logs(tmp_path: Path, monkeypatch):
         assert {"EKF2_GYR_NOISE", "EKF2_ACC_NOISE", "EKF2_MAG_NOISE", "EKF2_BARO_NOISE"} <= set(
             table.loc[table["solarnav"].notna(), "name"]), table
     assert sum("automatic calibration" in text.value for text in at.markdown) == 2
+    at.selectbox(key="cmp_params_a").set_value(shas[1]).run()  # A takes B's log: B moves to the other one
+    assert not at.exception and at.selectbox(key="cmp_params_b").value == shas[0]
 
 
 def test_the_parameter_view_of_the_two_real_octocopter_flights(tmp_path: Path, monkeypatch, real_logs_dir):
