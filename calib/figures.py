@@ -53,6 +53,9 @@ SOURCE_MEANINGS = {
     SOURCE_TAU: "eq 52 penalty factor", SOURCE_RECEIVER: "the receiver's reported accuracy",
     SOURCE_R: "eq 51 R as written in CALIB.json", SOURCE_TUNED: MEANING_IDENTIFIED, SOURCE_USER: "set by the user",
 }
+#: In-flight bias estimates are used only when every axis's posterior std is below these [rad/s, m/s^2].
+MAX_GYRO_BIAS_STD_RAD_S = math.radians(0.05)
+MAX_ACCEL_BIAS_STD_M_S2 = 0.03
 
 
 #: Estimator registry names (:data:`estimators.api.ESTIMATORS`) the table's rows name.

@@ -23,6 +23,8 @@ import numpy as np
 from calib.calibration import Calibration
 from calib.figures import (
     FIGURES,
+    MAX_ACCEL_BIAS_STD_M_S2,
+    MAX_GYRO_BIAS_STD_RAD_S,
     SOURCE_ALLAN,
     SOURCE_INFLIGHT,
     SOURCE_INFLIGHT_BIAS,
@@ -35,9 +37,6 @@ from calib.figures import (
     rms,
 )
 
-#: In-flight bias estimates are used only when every axis's posterior std is below these [rad/s, m/s^2].
-MAX_GYRO_BIAS_STD_RAD_S = math.radians(0.05)
-MAX_ACCEL_BIAS_STD_M_S2 = 0.03
 #: Segment kinds whose residual is the sensor's own noise.
 STILL_KINDS = ("stationary",)
 

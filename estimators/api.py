@@ -26,12 +26,13 @@ import dataclasses
 import math
 import time
 from collections.abc import Callable, Mapping, Sequence
+from concurrent.futures import Future
 from dataclasses import dataclass, replace
 
 import numpy as np
 import pandas as pd
 
-from calib.figures import FIGURES
+from calib.figures import FIGURES, MAX_ACCEL_BIAS_STD_M_S2, SOURCE_INFLIGHT_BIAS
 from estimators.config import EstimatorConfig
 from estimators.consistency import (
     REVERSED_AIRFLOW_LIMIT,
@@ -43,6 +44,7 @@ from estimators.consistency import (
 from estimators.core.results import DIAGNOSTIC_COLUMNS, STATE_COLUMNS, EstimatorReport, EstimatorRun
 from estimators.direct.run import run as run_direct
 from estimators.indirect.run import run as run_indirect
+from estimators.inflight_bias import trusted_bias_states
 from estimators.inputs.build import build_replay_inputs
 from estimators.inputs.records import AUTO_HEADING, HEADING_SOURCES
 from estimators.three_stage.run import run as run_three_stage
@@ -65,6 +67,7 @@ IGNORED_FIGURES: dict[str, dict[str, str]] = {
     for name in ESTIMATORS}
 #: Default estimator selection (all three, paper order).
 DEFAULT_ESTIMATORS = ("three_stage", "full_state_direct", "full_state_indirect")
+THREE_STAGE = "three_stage"
 #: Leads the warning of a refused finding replayed on request (``allow_untrusted=True``), and of a flagged one.
 UNTRUSTED_PREFIX = "UNTRUSTED INPUT (refused, replayed on request): "
 FLAGGED_PREFIX = "input quality: "
@@ -195,16 +198,23 @@ def run_estimators(flight_log: FlightLog, *, estimators: str | Sequence[str] = D
             built.append((configs[name], shared))
         inputs[name], prepare_s[name] = shared, time.perf_counter() - started
 
+    bias = _ThreeStageBias(flight_log, names, configs, inputs)
+
     def run_one(name: str) -> tuple[EstimatorRun, EstimatorReport]:
         notify("run", name)
-        run = functions[name](flight_log, inputs[name], configs[name])
+        run_config = bias.config() if name == THREE_STAGE else configs[name]
+        run = functions[name](flight_log, inputs[name], run_config)
+        bias.offer(name, run)
         # its consistency checks here, while the other estimators' kernels still run
-        report = _checked_report(run, configs[name], {"prepare": prepare_s[name], **run.report.timings_s},
+        report = _checked_report(run, run_config, {"prepare": prepare_s[name], **run.report.timings_s},
                                  findings, fixed_wing=inputs[name].plan.fixed_wing)
         notify("done", name)
         return run, report
 
-    finished = thread_map(run_one, names, len(names) if threads is None else threads)  # nogil kernels: side by side
+    # the error-state filter first: the three-stage filter waits for its bias states (nogil kernels: side by side)
+    order = sorted(names, key=lambda name: (name != bias.source, name == THREE_STAGE))
+    done = dict(zip(order, thread_map(run_one, order, len(names) if threads is None else threads), strict=True))
+    finished = [done[name] for name in names]
     notify("report", "")
     runs = [run for run, _ in finished]
     reports = {name: report for name, (_, report) in zip(names, finished, strict=True)}
@@ -213,6 +223,47 @@ def run_estimators(flight_log: FlightLog, *, estimators: str | Sequence[str] = D
     states = _stacked(names, [run.states for run in runs], (*STATE_COLUMNS[1:], *extra))
     diagnostics = _stacked(names, [run.diagnostics for run in runs], DIAGNOSTIC_COLUMNS[1:])
     return ReplayResult(states=states, diagnostics=diagnostics, reports=reports, input_quality=findings)
+
+
+class _ThreeStageBias:
+    """The accelerometer bias the three-stage filter (no bias states) removes from its specific force when no
+    calibration gives one: the error-state filter's in-flight estimate on the same inputs and settings
+    (docs/three_stage.md, 'Pre-processing'). Taken from that filter's run in this replay when it runs with
+    the same settings, else from a run of its own, so the three-stage result does not depend on the selection."""
+
+    source = "full_state_indirect"
+
+    def __init__(self, flight_log: FlightLog, names: tuple[str, ...], configs: Mapping[str, EstimatorConfig],
+                 inputs: Mapping[str, object]) -> None:
+        self._log, self._inputs = flight_log, inputs.get(THREE_STAGE)
+        self._base = configs.get(THREE_STAGE)
+        self.needed = (self._base is not None and self._base.calibrated.accel_bias_m_s2 is None
+                       and self._inputs.plan.has_gps)
+        self.shared = (self.needed and self.source in names and configs[self.source] == self._base
+                       and inputs[self.source] is self._inputs)
+        self._run: Future = Future()
+
+    def offer(self, name: str, run: EstimatorRun) -> None:
+        """Keep the error-state run of this replay when it is the one the three-stage filter needs."""
+        if self.shared and name == self.source:
+            self._run.set_result(run)
+
+    def config(self) -> EstimatorConfig:
+        """The three-stage settings with the in-flight bias, or as given when it is not needed or not trusted
+        (:func:`estimators.inflight_bias.trusted_bias_states`, converged below
+        :data:`calib.figures.MAX_ACCEL_BIAS_STD_M_S2` on every axis)."""
+        if not self.needed:
+            return self._base
+        run = self._run.result() if self.shared else run_indirect(self._log, self._inputs, self._base)
+        states = trusted_bias_states(run)
+        if states is None or not all(math.isfinite(v) and v <= MAX_ACCEL_BIAS_STD_M_S2
+                                     for v in states.accel_bias_std_m_s2):
+            return self._base
+        calibrated = self._base.calibrated
+        use = "subtracted from the specific force (the error-state filter's final bias states in this replay)"
+        return replace(self._base, calibrated=replace(
+            calibrated, accel_bias_m_s2=states.accel_bias_m_s2,
+            provenance=(*calibrated.provenance, (FIGURES.accel_bias.name, SOURCE_INFLIGHT_BIAS, use))))
 
 
 def checked_input_quality(flight_log: FlightLog, *, allow_untrusted: bool = False) -> tuple[QualityFinding, ...]:

@@ -8,7 +8,6 @@ It lives in the estimators layer because it runs a filter; :func:`calib.tau.choo
 from __future__ import annotations
 
 import dataclasses
-import math
 from collections.abc import Callable
 from dataclasses import replace
 
@@ -17,8 +16,8 @@ from calib.calibration import Calibration
 from calib.filter_figures import calibration_figures
 from calib.tau import Innovations
 from estimators.config import config_from_calibration
-from estimators.consistency import MIN_UPDATES, NIS_WARNING_RANGE, channel_consistency
 from estimators.indirect.run import run as run_indirect
+from estimators.inflight_bias import trusted_bias_states
 from estimators.inputs.build import build_replay_inputs
 from estimators.three_stage.run import run as run_three_stage
 from ingest.errors import InputError
@@ -52,30 +51,18 @@ def tau_replay(log: FlightLog, cal: Calibration) -> Callable[[float], Innovation
 
 
 def inflight_bias(log: FlightLog, cal: Calibration) -> InflightBias | None:
-    """The error-state filter's final gyro and accelerometer bias states on ``log`` with the noise of ``cal`` (None
-    without GPS, when the accelerometer biases are not observable, when the filter diverged, or when its GPS
-    channels are inconsistent: docs/calibration.md, 'From calibration to filter settings').
-
-    The accelerometer bias is observed through the GPS velocity and position; a GPS channel whose mean NIS is
-    above the warning limit means the filter explained a model error (a tilt pulled by a disturbed
-    magnetometer, say) with its bias states, while their covariance still says "converged"."""
+    """The error-state filter's final gyro and accelerometer bias states on ``log`` with the noise of ``cal``
+    (:func:`estimators.inflight_bias.trusted_bias_states`; None without GPS)."""
     config = config_from_calibration(cal)
     inputs = build_replay_inputs(log, config, rate_hz=1.0)
     if not inputs.plan.has_gps:
         return None
-    run = run_indirect(log, inputs, config)
-    final, std = run.report.details["final_state"], run.report.details["final_state_std"]
-    if run.report.resets or not all(math.isfinite(final[f"b{k}{a}"]) for k in "ga" for a in "xyz"):
+    states = trusted_bias_states(run_indirect(log, inputs, config))
+    if states is None:
         return None
-    if any(c.channel.startswith("gps_") and c.n_updates >= MIN_UPDATES and c.mean_nis > NIS_WARNING_RANGE[1]
-           for c in channel_consistency(run.diagnostics)):
-        return None
-    end_s = float(run.states["time_s"].iloc[-1])
-    return InflightBias(source="full_state_indirect", window_s=(end_s, end_s),
-                        gyro_bias_rad_s=tuple(final[f"bg{a}"] for a in "xyz"),
-                        gyro_bias_std_rad_s=tuple(std.get(f"dbg{a}", math.nan) for a in "xyz"),
-                        accel_bias_m_s2=tuple(final[f"ba{a}"] for a in "xyz"),
-                        accel_bias_std_m_s2=tuple(std.get(f"dba{a}", math.nan) for a in "xyz"))
+    return InflightBias(source="full_state_indirect", window_s=(states.end_s, states.end_s),
+                        gyro_bias_rad_s=states.gyro_bias_rad_s, gyro_bias_std_rad_s=states.gyro_bias_std_rad_s,
+                        accel_bias_m_s2=states.accel_bias_m_s2, accel_bias_std_m_s2=states.accel_bias_std_m_s2)
 
 
 def with_filter_figures(log: FlightLog, cal: Calibration) -> Calibration:

@@ -46,6 +46,7 @@ from ingest.errors import InputError
 from ingest.flightlog import OPTIONAL_COLUMNS, STREAM_COLUMNS, FlightLog, LogMetadata, stream_info, utc_offset_s
 from ingest.frames import euler_to_quat, quat_to_euler, wrap_angle_deg
 from ingest.px4_topics import SENSOR_STREAMS
+from ingest.threads import in_background
 
 #: The first bytes of every DataFlash log (the header of its first record).
 DATAFLASH_MAGIC = bytes((df.HEAD_1, df.HEAD_2))
@@ -102,6 +103,7 @@ def flightlog_from_dataflash(content: bytes, *, source: str) -> FlightLog:
     if not is_dataflash(content):
         raise InputError("not an ArduPilot DataFlash log (it does not start with the bytes 0xA3 0x95)",
                          source=source)
+    sha256 = in_background(lambda: hashlib.sha256(content).hexdigest())  # beside the parse (hashlib frees the GIL)
     data = np.frombuffer(content, dtype=np.uint8)
     index = df.walk_records(data)
     formats, rejected = df.read_formats(data, index)
@@ -134,7 +136,7 @@ def flightlog_from_dataflash(content: bytes, *, source: str) -> FlightLog:
     imu_time_s = streams["imu"].index.to_numpy()
     meta = LogMetadata(
         source=source,
-        sha256=hashlib.sha256(content).hexdigest(),
+        sha256=sha256(),
         vehicle_type=_vehicle_type(vehicle, parameters, warnings),
         hardware=board,
         px4_version=firmware,

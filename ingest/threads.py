@@ -6,6 +6,9 @@ from __future__ import annotations
 import os
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
+from typing import TypeVar
+
+T = TypeVar("T")
 
 
 def thread_map(function: Callable, items: Sequence, workers: int | None = None) -> list:
@@ -16,3 +19,12 @@ def thread_map(function: Callable, items: Sequence, workers: int | None = None) 
         return [function(item) for item in items]
     with ThreadPoolExecutor(max_workers=workers) as pool:
         return list(pool.map(function, items))
+
+
+def in_background(function: Callable[..., T], *args) -> Callable[[], T]:
+    """Start ``function(*args)`` on a side thread (work that releases the GIL: hashing, numpy) and return the
+    call that waits for its result (re-raising its exception)."""
+    pool = ThreadPoolExecutor(max_workers=1)
+    future = pool.submit(function, *args)
+    pool.shutdown(wait=False)
+    return future.result

@@ -60,6 +60,7 @@ from ingest.px4_topics import (
     US_TO_S,
     TopicSpec,
 )
+from ingest.threads import in_background
 from ingest.ulog_fast import compile_kernels as compile_fast_kernels
 from ingest.ulog_fast import read_ulog
 
@@ -114,13 +115,14 @@ def flightlog_from_ulog_content(content: bytes, *, source: str) -> FlightLog:
         The content is not a ULog, is damaged beyond what the reader can skip (docs/robustness.md, 'ULog reader
         guard'), or has no usable IMU (``sensor_combined``) data.
     """
+    sha256 = in_background(lambda: hashlib.sha256(content).hexdigest())  # beside the parse (hashlib frees the GIL)
     ulog, notes = read_ulog(content, source, ALL_TOPICS)
     if not ulog.file_corruption:
         end = _message_walk_end(np.frombuffer(content, dtype=np.uint8), ULOG_HEADER_BYTES)
         if end != len(content):
             notes.append(f"the file is truncated: its last message is cut off at byte {len(content)}; "
                          "the complete messages before it were read")
-    return flightlog_from_ulog(ulog, source=source, sha256=hashlib.sha256(content).hexdigest(), notes=notes)
+    return flightlog_from_ulog(ulog, source=source, sha256=sha256(), notes=notes)
 
 
 def flightlog_from_ulog(ulog: ULog, *, source: str, sha256: str = "", notes: Sequence[str] = ()) -> FlightLog:
@@ -314,7 +316,7 @@ def _topic_frame(data: dict[str, np.ndarray], spec: TopicSpec, label: str, start
     if "timestamp" not in data:  # only a damaged format lacks it
         warnings.append(f"{label}: no timestamp field; topic skipped")
         return "no timestamp field"
-    columns: dict[str, np.ndarray] = {}
+    sources: dict[str, tuple[np.ndarray, object] | None] = {}  # column -> (raw field, scale); None: NaN
     for field in spec.fields:
         raw_and_scale = next(((data[px4], scale) for px4, scale, kinds in field.sources
                               if px4 in data and (not kinds or data[px4].dtype.kind in kinds)), None)
@@ -322,13 +324,9 @@ def _topic_frame(data: dict[str, np.ndarray], spec: TopicSpec, label: str, start
             if field.required:
                 return f"no field {' or '.join(dict.fromkeys(px4 for px4, _, _ in field.sources))}"
             if field.nan_if_missing:
-                columns[field.column] = np.full(len(data["timestamp"]), np.nan)
+                sources[field.column] = None
             continue
-        raw, scale = raw_and_scale
-        values = raw.astype(np.float64) * (scale(raw) if callable(scale) else scale)
-        if field.zero_is_missing:
-            values[raw == 0] = np.nan
-        columns[field.column] = values
+        sources[field.column] = raw_and_scale
 
     time_us = data["timestamp"].astype(np.int64)
     if not time_us.any():
@@ -349,8 +347,22 @@ def _topic_frame(data: dict[str, np.ndarray], spec: TopicSpec, label: str, start
     if isinstance(rows, str):
         warnings.append(f"{label}: {rows}; topic skipped")
         return rows
-    index = pd.Index(time_us[rows] * US_TO_S, name="time_s")
-    frame = pd.DataFrame({column: values[rows] for column, values in columns.items()}, index=index)
+    every_row = len(rows) == len(time_us) and bool(np.all(np.diff(rows) > 0))  # the rows as logged
+    # One float64 block, column after column, that the DataFrame takes without a copy (no per-column arrays
+    # stacked by pandas, no second gather of the kept rows).
+    block = np.empty((len(sources), len(rows)))
+    zero_is_missing = {field.column for field in spec.fields if field.zero_is_missing}
+    for out, (column, source) in zip(block, sources.items(), strict=True):
+        if source is None:
+            out.fill(np.nan)
+            continue
+        raw = source[0] if every_row else source[0][rows]
+        scale = source[1](raw) if callable(source[1]) else source[1]
+        np.multiply(raw, scale, out=out, dtype=np.float64)
+        if column in zero_is_missing:
+            out[raw == 0] = np.nan
+    index = pd.Index((time_us if every_row else time_us[rows]) * US_TO_S, name="time_s")
+    frame = pd.DataFrame(block.T, index=index, columns=list(sources), copy=False)
     if "sample_time_s" in frame.columns:
         _drop_implausible_sample_times(frame, label, warnings)
     return frame

@@ -8,6 +8,8 @@ import pytest
 from app.samples import SAMPLE_DIR
 from estimators.inputs.build import build_replay_inputs
 from estimators.inputs.records import AUTO_HEADING, HEADING_SOURCES, resolve_heading
+from ingest.errors import InputError
+from ingest.flightlog import FlightLog
 from ingest.log_formats import load_flight_log
 from ingest.sun_log import load_sun_device, with_sun
 
@@ -34,6 +36,20 @@ def test_the_default_replay_inputs_fuse_the_sun_when_the_log_has_it(sample_log):
     assert {"mag", "sun"} <= set(both.used)
     only_mag = build_replay_inputs(sunny, heading="mag").plan
     assert "sun" not in only_mag.used and not only_mag.has_sun  # an explicit choice is kept
+
+
+def test_the_default_falls_back_to_the_magnetometer_when_the_sun_device_gives_no_sun_vector(sample_log):
+    """Without GPS there is no ephemeris: the default heading goes on with the magnetometer and says so, an explicit
+    sun heading is refused."""
+    sunny = with_sun(sample_log, SAMPLE_DIR / "failed_cell_sun.csv",
+                     device=load_sun_device(SAMPLE_DIR / "failed_cell_device.json"))
+    no_gps = FlightLog(streams={name: frame for name, frame in sunny.streams.items() if name != "gps"},
+                       meta=sunny.meta)
+    inputs = build_replay_inputs(no_gps)
+    assert "mag" in inputs.plan.used and "sun" not in inputs.plan.used
+    assert any("magnetometer heading only" in warning for warning in inputs.warnings)
+    with pytest.raises(InputError, match="needs sun-vector observations"):
+        build_replay_inputs(no_gps, heading="mag+sun")
 
 
 def test_calibrate_takes_the_sun_device_log_as_replay_and_report_do(tmp_path, capsys):

@@ -131,6 +131,7 @@ def build_replay_inputs(flight_log: FlightLog, config: EstimatorConfig | None = 
         raise InputError(f"output rate must be in (0, 1000] Hz, got {rate_hz!r}", field="rate_hz")
     if heading not in HEADING_SOURCES:
         raise InputError(f"heading must be one of {', '.join(HEADING_SOURCES)}, got {heading!r}", field="heading")
+    chosen = heading != AUTO_HEADING
     heading = resolve_heading(heading, sun_observations is not None or flight_log.has("sun"))
     notes = _Notes()
     imu = _imu_samples(flight_log, config, notes.warnings)
@@ -152,7 +153,8 @@ def build_replay_inputs(flight_log: FlightLog, config: EstimatorConfig | None = 
                                   "tilt observable; no position or velocity output")
     baro, baro_offset_m = _baro_events(flight_log, gps, origin, config, notes)
     mag = _mag_events(flight_log, heading, origin, imu, config, notes)
-    sun_part = sun_heading_events(flight_log, heading, sun_observations, origin, source, notes.warnings)
+    sun_part = sun_heading_events(flight_log, heading, sun_observations, origin, source, notes.warnings,
+                                  chosen=chosen)
     if sun_part is not None:
         notes.parts.append(sun_part)
     airspeed = _airspeed_events(flight_log, gps, fixed_wing, config, notes)

@@ -13,13 +13,20 @@ from ingest.flightlog import FlightLog
 
 
 def sun_heading_events(flight_log: FlightLog, heading: str, sun_observations: pd.DataFrame | None, origin: Origin,
-                       source: str, warnings: list[str]):
+                       source: str, warnings: list[str], *, chosen: bool = True):
     """The sun-vector event part ``(time_s, SUN, values, variances)`` when the heading source includes the sun
-    (else None): the given observations, else those of the log's photocells (:func:`sun_observations_from_log`)."""
+    (else None): the given observations, else those of the log's photocells (:func:`sun_observations_from_log`).
+
+    Without a single observation it raises when the user ``chosen`` the sun; when the default heading chose it
+    (``"auto"`` with sun-device data) the replay goes on with the magnetometer and says so in ``warnings``."""
     if heading not in ("sun", "mag+sun"):
         return None
     if sun_observations is None and flight_log.has("sun"):
         sun_observations = sun_observations_from_log(flight_log, origin, warnings)
+    if (sun_observations is None or len(sun_observations) == 0) and not chosen:
+        warnings.append("default heading: the sun device gave no sun vector (no GPS fix or UTC time for the "
+                        "ephemeris, or the sun below the horizon): magnetometer heading only")
+        return None
     if sun_observations is None or len(sun_observations) == 0:
         raise InputError(f"heading {heading!r} needs sun-vector observations (a sun-device CSV with the sun "
                          "above the horizon and a GPS fix for the ephemeris)", source=source, field="heading")
