@@ -43,10 +43,12 @@ from estimators.consistency import (
 )
 from estimators.core.results import DIAGNOSTIC_COLUMNS, STATE_COLUMNS, EstimatorReport, EstimatorRun
 from estimators.direct.run import run as run_direct
+from estimators.indirect.run import NAME as INDIRECT
 from estimators.indirect.run import run as run_indirect
 from estimators.inflight_bias import trusted_bias_states
 from estimators.inputs.build import build_replay_inputs
 from estimators.inputs.records import AUTO_HEADING, HEADING_SOURCES
+from estimators.three_stage.run import NAME as THREE_STAGE
 from estimators.three_stage.run import run as run_three_stage
 from ingest.errors import InputError
 from ingest.flightlog import FlightLog
@@ -67,7 +69,6 @@ IGNORED_FIGURES: dict[str, dict[str, str]] = {
     for name in ESTIMATORS}
 #: Default estimator selection (all three, paper order).
 DEFAULT_ESTIMATORS = ("three_stage", "full_state_direct", "full_state_indirect")
-THREE_STAGE = "three_stage"
 #: Leads the warning of a refused finding replayed on request (``allow_untrusted=True``), and of a flagged one.
 UNTRUSTED_PREFIX = "UNTRUSTED INPUT (refused, replayed on request): "
 FLAGGED_PREFIX = "input quality: "
@@ -203,7 +204,11 @@ def run_estimators(flight_log: FlightLog, *, estimators: str | Sequence[str] = D
     def run_one(name: str) -> tuple[EstimatorRun, EstimatorReport]:
         notify("run", name)
         run_config = bias.config() if name == THREE_STAGE else configs[name]
-        run = functions[name](flight_log, inputs[name], run_config)
+        try:
+            run = functions[name](flight_log, inputs[name], run_config)
+        except BaseException as exc:
+            bias.offer(name, exc)  # a waiting three-stage run fails with it instead of waiting forever
+            raise
         bias.offer(name, run)
         # its consistency checks here, while the other estimators' kernels still run
         report = _checked_report(run, run_config, {"prepare": prepare_s[name], **run.report.timings_s},
@@ -231,7 +236,7 @@ class _ThreeStageBias:
     (docs/three_stage.md, 'Pre-processing'). Taken from that filter's run in this replay when it runs with
     the same settings, else from a run of its own, so the three-stage result does not depend on the selection."""
 
-    source = "full_state_indirect"
+    source = INDIRECT
 
     def __init__(self, flight_log: FlightLog, names: tuple[str, ...], configs: Mapping[str, EstimatorConfig],
                  inputs: Mapping[str, object]) -> None:
@@ -243,10 +248,14 @@ class _ThreeStageBias:
                        and inputs[self.source] is self._inputs)
         self._run: Future = Future()
 
-    def offer(self, name: str, run: EstimatorRun) -> None:
-        """Keep the error-state run of this replay when it is the one the three-stage filter needs."""
+    def offer(self, name: str, run: EstimatorRun | BaseException) -> None:
+        """Keep the error-state run of this replay (or its failure) when it is the one the three-stage filter
+        needs."""
         if self.shared and name == self.source:
-            self._run.set_result(run)
+            if isinstance(run, BaseException):
+                self._run.set_exception(run)
+            else:
+                self._run.set_result(run)
 
     def config(self) -> EstimatorConfig:
         """The three-stage settings with the in-flight bias, or as given when it is not needed or not trusted

@@ -316,7 +316,7 @@ def _topic_frame(data: dict[str, np.ndarray], spec: TopicSpec, label: str, start
     if "timestamp" not in data:  # only a damaged format lacks it
         warnings.append(f"{label}: no timestamp field; topic skipped")
         return "no timestamp field"
-    sources: dict[str, tuple[np.ndarray, object] | None] = {}  # column -> (raw field, scale); None: NaN
+    sources: dict[str, tuple | None] = {}  # column -> (raw field, scale, zero is missing); None: all NaN
     for field in spec.fields:
         raw_and_scale = next(((data[px4], scale) for px4, scale, kinds in field.sources
                               if px4 in data and (not kinds or data[px4].dtype.kind in kinds)), None)
@@ -326,7 +326,7 @@ def _topic_frame(data: dict[str, np.ndarray], spec: TopicSpec, label: str, start
             if field.nan_if_missing:
                 sources[field.column] = None
             continue
-        sources[field.column] = raw_and_scale
+        sources[field.column] = (*raw_and_scale, field.zero_is_missing)
 
     time_us = data["timestamp"].astype(np.int64)
     if not time_us.any():
@@ -351,15 +351,14 @@ def _topic_frame(data: dict[str, np.ndarray], spec: TopicSpec, label: str, start
     # One float64 block, column after column, that the DataFrame takes without a copy (no per-column arrays
     # stacked by pandas, no second gather of the kept rows).
     block = np.empty((len(sources), len(rows)))
-    zero_is_missing = {field.column for field in spec.fields if field.zero_is_missing}
-    for out, (column, source) in zip(block, sources.items(), strict=True):
+    for out, source in zip(block, sources.values(), strict=True):
         if source is None:
             out.fill(np.nan)
             continue
-        raw = source[0] if every_row else source[0][rows]
-        scale = source[1](raw) if callable(source[1]) else source[1]
-        np.multiply(raw, scale, out=out, dtype=np.float64)
-        if column in zero_is_missing:
+        field_values, scale, zero_is_missing = source
+        raw = field_values if every_row else field_values[rows]
+        np.multiply(raw, scale(raw) if callable(scale) else scale, out=out, dtype=np.float64)
+        if zero_is_missing:
             out[raw == 0] = np.nan
     index = pd.Index((time_us if every_row else time_us[rows]) * US_TO_S, name="time_s")
     frame = pd.DataFrame(block.T, index=index, columns=list(sources), copy=False)

@@ -79,3 +79,27 @@ def test_no_gps_no_bias_removed(calm):
 def _with_accel_bias(config: EstimatorConfig, value: float) -> EstimatorConfig:
     return dataclasses.replace(config, calibrated=dataclasses.replace(config.calibrated,
                                                                       accel_bias_m_s2=(value, value, value)))
+
+
+def test_a_failing_error_state_run_fails_the_waiting_three_stage_run_instead_of_hanging(calm, monkeypatch):
+    import threading
+
+    import estimators.api as api
+
+    def broken(flight_log, inputs, config):
+        raise RuntimeError("error-state kernel failed")
+
+    monkeypatch.setitem(api.ESTIMATORS, "full_state_indirect", broken)
+    outcome = []
+
+    def replay():
+        try:
+            run_estimators(calm.log, estimators=("three_stage", "full_state_indirect"), rate_hz=5.0)
+        except RuntimeError as exc:
+            outcome.append(str(exc))
+
+    worker = threading.Thread(target=replay, daemon=True)
+    worker.start()
+    worker.join(timeout=120.0)
+    assert not worker.is_alive(), "the three-stage run waits forever for the failed error-state run"
+    assert outcome == ["error-state kernel failed"]
