@@ -232,11 +232,11 @@ def synthetic_flight(duration_s: float = 6.0, imu_hz: float = 200.0):
 #: The ULog reader's numba functions in :data:`WARM_GROUPS`.
 ULOG_READER = "ulog_reader"
 #: What :func:`warm_up` compiles, in two groups of about equal cold-compile time that two processes compile side
-#: by side (measured cold on this project's two-core machine, one item after the other: the three-stage filter
-#: 45-87 s, the full-state filters 18-39 s each, the sun-vector solver 14-25 s, the ULog reader 2-3 s). Numba's
-#: compiler lock serialises compiles within one process, so threads would not help; the processes share the
-#: on-disk cache (numba writes it atomically, one file per function).
-WARM_GROUPS = (("three_stage", ULOG_READER), ("full_state_direct", "full_state_indirect", SUN_SOLVER))
+#: by side (measured cold on this project's two-core machine, two processes: the three-stage filter 28 s, the
+#: full-state direct 20 s, the error-state filter 13 s after it (their shared functions already compiled), the
+#: sun-vector solver 10 s, the ULog reader 1-3 s). Numba's compiler lock serialises compiles within one process, so
+#: threads would not help; the processes share the on-disk cache (numba writes it atomically, one file per function).
+WARM_GROUPS = (("three_stage", SUN_SOLVER, ULOG_READER), ("full_state_direct", "full_state_indirect"))
 #: What :func:`warm_up` reports per item.
 WARM_LABELS = {SUN_SOLVER: "sun-vector solver", ULOG_READER: "ULog reader"}
 

@@ -47,6 +47,8 @@ def test_cache_check_is_cold_on_an_empty_cache_and_warm_after_the_warm_up(tmp_pa
     assert sorted(reported) == sorted(["three_stage", "full_state_direct", "full_state_indirect", "sun-vector solver",
                                        "ULog reader"]), warmed.stdout  # from the two processes, each item once
 
+    _assert_one_specialization_per_function(cache)
+
     warm = _python(["-m", "estimators.warmup", "--check"], cache)
     assert warm.returncode == 0 and warm.stdout.strip() == "warm", warm.stdout + warm.stderr
     again = _python(["-m", "estimators.warmup"], cache)
@@ -69,6 +71,37 @@ def test_cache_check_is_cold_on_an_empty_cache_and_warm_after_the_warm_up(tmp_pa
     first, second = result.stdout.strip().splitlines()
     assert first == "True a source the kernel depends on is newer than its cache"
     assert second == "False False 4"  # three filters, the sun solver
+
+
+#: Cached functions allowed more than one specialization after the warm-up (docs/estimators.md, 'One compile per
+#: function'): the array copies (float and bool arrays; a strided Jacobian block) and the quadratic form of the
+#: three-stage output (a 3- and a 2-vector).
+SEVERAL_SPECIALIZATIONS = {"core.linalg.copy_into", "core.linalg.copy_rows_into", "core.linalg.quadratic_form"}
+
+
+def _cached_signatures(cache_dir) -> dict[str, list[str]]:
+    """``package.module.function`` -> the argument types of every specialization in numba's cache indexes under
+    ``cache_dir`` (one folder per source folder, ``<name>_<hash>``; an index is a pickled version, then a pickled
+    ``(stamp, {key: file})`` with the signature first in the key)."""
+    import pickle
+
+    found: dict[str, list[str]] = {}
+    for index in sorted(cache_dir.rglob("*.nbi")):
+        with open(index, "rb") as f:
+            pickle.load(f)
+            _, overloads = pickle.loads(f.read())
+        name = f"{index.parent.name.rsplit('_', 1)[0]}.{index.name.split('-')[0]}"
+        found.setdefault(name, []).extend(str(key[0]) for key in overloads)
+    return found
+
+
+def _assert_one_specialization_per_function(cache_dir) -> None:
+    signatures = _cached_signatures(cache_dir)
+    assert len(signatures) > 100, sorted(signatures)  # the kernels' functions were cached
+    several = {name: sigs for name, sigs in signatures.items() if len(sigs) > 1}
+    literal = {name: sigs for name, sigs in several.items() if any("Literal[" in sig for sig in sigs)}
+    assert not literal, f"compiled once per literal argument value: {literal}"
+    assert set(several) <= SEVERAL_SPECIALIZATIONS, f"compiled more than once: {several}"
 
 
 def test_the_warm_up_groups_cover_every_entry_kernel_and_the_ulog_reader_once():

@@ -189,7 +189,8 @@ def wind_walk_scale(state):
 @njit(cache=True)
 def scaled_wind_walk(walk_psd, wind_index, scale, out):
     """``walk_psd`` into ``out`` with the two wind states (from ``wind_index``; < 0: none) times ``scale``."""
-    out[:] = walk_psd
+    for i in range(out.shape[0]):
+        out[i] = walk_psd[i]
     if wind_index >= 0:
         out[wind_index] *= scale
         out[wind_index + 1] *= scale

@@ -13,6 +13,8 @@ nothing, so the filters' time loops can call it per sample without Python overhe
   ``S`` and the normalised innovation squared ``NIS = nu^2 / S``.
 * :func:`limit_variances` / :func:`repair_covariance` -- variance limits (cheap, every propagation) and positive
   definiteness (Cholesky test, eigenvalue clipping only when it fails).
+* :func:`copy_into` / :func:`copy_rows_into` -- array copies as loops: a numpy slice assignment between arrays
+  compiles numba's shape-mismatch error message (some 30 string functions per process and array rank).
 * :func:`is_healthy` / :func:`reset_filter` -- divergence detection (non-finite state or covariance) and reset
   to a safe state; the caller counts resets and reports them.
 * :func:`record_update` / :func:`record_output` -- the diagnostics and output recorders writing into
@@ -82,7 +84,7 @@ def transition_matrix(A, dt, F):
         Output.
     """
     n = A.shape[0]
-    m = dynamic_rows(A, False)
+    m = dynamic_rows(A, bool(False))  # bool(): one compile for both callers
     half_dt2 = 0.5 * dt * dt
     for i in range(m):
         for j in range(n):
@@ -163,7 +165,7 @@ def propagate_covariance_into(P, F, Qd, work, values, cols, counts, columns):
     """:func:`propagate_covariance` with preallocated scratch: ``values`` (n, n) float64, ``cols`` (n, n) and
     ``counts`` (n,) int64, ``columns`` = ``arange(n)``; nothing is allocated."""
     n = P.shape[0]
-    m = dynamic_rows(F, True)
+    m = dynamic_rows(F, bool(True))
     sparse_rows(F, columns, values[:m], cols[:m], counts[:m])
     propagate_sparse(P, values[:m], cols[:m], counts[:m], work)
     for i in range(n):
@@ -377,6 +379,21 @@ def accumulate_inputs(acc, dt, gyro, accel):
     for i in range(3):
         acc[1 + i] += gyro[i] * dt
         acc[4 + i] += accel[i] * dt
+
+
+@njit(cache=True)
+def copy_into(dst, src):
+    """``dst[:] = src[:len(dst)]`` for 1-D arrays (``src`` at least as long)."""
+    for i in range(dst.shape[0]):
+        dst[i] = src[i]
+
+
+@njit(cache=True)
+def copy_rows_into(dst, src, rows):
+    """``dst[:rows] = src[:rows]`` for 2-D arrays of equal width."""
+    for i in range(rows):
+        for j in range(dst.shape[1]):
+            dst[i, j] = src[i, j]
 
 
 @njit(cache=True)

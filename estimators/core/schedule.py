@@ -98,47 +98,50 @@ def _build_schedule(imu_time_s, event_time_s, event_kind, event_imu_index, covar
     op = np.empty(capacity, dtype=np.int8)
     dt = np.empty(capacity)
     index = np.empty(capacity, dtype=np.int64)
-    n = 0
+    n = int(0)  # int(), as the codes below
     if n_imu == 0:
         return op[:0], dt[:0], index[:0]
+    # int(): numba compiles a callee once per literal argument value; int64 variables keep _emit to one compile
+    propagate, covariance, event, periodic_update, no_index = (int(PROPAGATE), int(COVARIANCE), int(EVENT),
+                                                               int(PERIODIC), int(-1))
     threshold = covariance_dt_s * (1.0 - INTERVAL_TOLERANCE)
     periodic = math.isfinite(periodic_dt_s) and periodic_dt_s > 0.0
     next_periodic = imu_time_s[0]
     t = imu_time_s[0]
     last_periodic = t  # a periodic update needs time propagated since the last one (or the start)
     accumulated = 0.0
-    j = 0
+    j = int(0)
     for k in range(n_imu):
         while True:
             at_event = j < n_events and event_imu_index[j] <= k
             t_next = event_time_s[j] if at_event else imu_time_s[k]
             if t_next > t:
-                n = _emit(op, dt, index, n, PROPAGATE, t_next - t, k)
+                n = _emit(op, dt, index, n, propagate, t_next - t, k)
                 accumulated += t_next - t
                 t = t_next
                 if accumulated >= threshold:
-                    n = _emit(op, dt, index, n, COVARIANCE, t, -1)
+                    n = _emit(op, dt, index, n, covariance, t, no_index)
                     accumulated = 0.0
             if not at_event:
                 break
             if fused[event_kind[j]] and accumulated > 0.0:
-                n = _emit(op, dt, index, n, COVARIANCE, t, -1)
+                n = _emit(op, dt, index, n, covariance, t, no_index)
                 accumulated = 0.0
-            n = _emit(op, dt, index, n, EVENT, t, j)
+            n = _emit(op, dt, index, n, event, t, j)
             j += 1
         if periodic and t >= next_periodic and t > last_periodic:
             if accumulated > 0.0:
-                n = _emit(op, dt, index, n, COVARIANCE, t, -1)
+                n = _emit(op, dt, index, n, covariance, t, no_index)
                 accumulated = 0.0
-            n = _emit(op, dt, index, n, PERIODIC, t, -1)
+            n = _emit(op, dt, index, n, periodic_update, t, no_index)
             last_periodic = t
             next_periodic = max(next_periodic + periodic_dt_s, t + 0.5 * periodic_dt_s)
     while j < n_events:  # events after the last IMU row (none from build_replay_inputs): handled at the last time
         if fused[event_kind[j]] and accumulated > 0.0:
-            n = _emit(op, dt, index, n, COVARIANCE, t, -1)
+            n = _emit(op, dt, index, n, covariance, t, no_index)
             accumulated = 0.0
-        n = _emit(op, dt, index, n, EVENT, t, j)
+        n = _emit(op, dt, index, n, event, t, j)
         j += 1
     if accumulated > 0.0:
-        n = _emit(op, dt, index, n, COVARIANCE, t, -1)
+        n = _emit(op, dt, index, n, covariance, t, no_index)
     return op[:n], dt[:n], index[:n]

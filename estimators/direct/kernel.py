@@ -133,7 +133,7 @@ def reset_to_gps(x, P, kind, values, variances, layout, move_wind, R_nb, S_euler
             for b in range(3):
                 work[a, b] = 0.0
             work[a, a] = variances[a]
-        linalg.reset_covariance_block(P, I_P, work[:3, :3].copy())
+        linalg.reset_covariance_block(P, int(I_P), work[:3, :3])  # int(), a slice: as the wind's (one compile)
         return
     for i in range(n):
         for k in range(n):
@@ -451,13 +451,15 @@ def _loop(imu_gyro, imu_accel, ev_kind, ev_val, ev_var, op, op_dt, op_index, set
     diag_f, diag_i, counters = rec
     g = settings.gravity_m_s2
     gps_mon = reacquisition.gps_monitor()
-    air_ok = False  # the last airspeed update was accepted (reset_to_gps)
+    # bool() / int(): a loop-carried variable started from a literal would compile each callee it reaches twice
+    # (docs/estimators.md, 'One compile per function')
+    air_ok = bool(False)  # the last airspeed update was accepted (reset_to_gps)
     held_walk = held_wind_walk(settings.walk_psd, layout[L_W])
     wind_nis = wind_adaptation()  # the wind walk follows the turbulence (adapt_wind_walk)
     walk_now = np.empty_like(settings.walk_psd)
     t_now = -math.inf
     t_wind_observed = -math.inf
-    n_out = 0
+    n_out = int(0)
     for s in range(op.shape[0]):
         code = op[s]
         if code == PROPAGATE:

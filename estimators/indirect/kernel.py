@@ -192,7 +192,7 @@ def reset_to_gps(x, P, kind, values, variances, field, lever_b, gyro, sel, move_
             for b in range(3):
                 block[a, b] = 0.0
             block[a, a] = variances[a]
-        linalg.reset_covariance_block(P, m.E_P, block)
+        linalg.reset_covariance_block(P, int(m.E_P), block[:3, :3])  # int(), a slice: as the wind's (one compile)
         return
     n = sel.shape[0]
     aw = -1
@@ -269,8 +269,8 @@ def healthy(x, P, zero_error):
 def _check_health(x, P, x_safe, P0, zero_error, counters):
     """Divergence reset when not :func:`healthy`: last healthy nominal state, initial covariance."""
     if not healthy(x, P, zero_error):
-        x[:] = x_safe
-        P[:, :] = P0
+        linalg.copy_into(x, x_safe)  # the nominal (NX) is longer than the error state (P: n x n)
+        linalg.copy_rows_into(P, P0, P.shape[0])
         counters[C_RESETS] += 1
 
 
@@ -282,7 +282,8 @@ def _write_output(out_f, out_sd, row, t, x, P):
         return
     n = P.shape[0]
     out_f[row, 0] = t
-    out_f[row, 1:] = x
+    for i in range(x.shape[0]):
+        out_f[row, 1 + i] = x[i]
     for i in range(n):
         out_sd[row, i] = math.sqrt(max(P[i, i], 0.0))
     out_sd[row, n] = P[m.E_TH, m.E_TH + 1]
@@ -322,7 +323,7 @@ def _fuse(x, P, t, kind, values, variances, gyro, settings, w, gps_mon, rec):
     if kind == SUN:
         for c in range(3):
             h3[c] = measurement(x, kind, c, values, field, lever, gyro, H_full)
-            H3[c, :] = H_full
+            linalg.copy_into(H3[c], H_full)
         basis = sun_tangent_basis(h3)
     else:
         basis = w.basis  # unused
@@ -333,7 +334,7 @@ def _fuse(x, P, t, kind, values, variances, gyro, settings, w, gps_mon, rec):
             if s.inject_scalar:  # re-linearise at the injected nominal, on the prior's tangent plane
                 for cc in range(3):
                     h3[cc] = measurement(x, kind, cc, values, field, lever, gyro, H_full)
-                    H3[cc, :] = H_full
+                    linalg.copy_into(H3[cc], H_full)
             nu = tangent_projection(basis, c, values, h3, H3, H_full)
             r_var = variances[c]
         elif c == MAG_HEADING and kind == MAG:
@@ -400,9 +401,11 @@ def run_kernel(imu_gyro, imu_accel, ev_kind, ev_imu, ev_val, ev_var, op, op_dt, 
     rec = Recorder(diag_f, diag_i, counters)
     acc = w.acc
     gps_mon = reacquisition.gps_monitor()
-    air_ok = False  # the last airspeed update was accepted (reset_to_gps)
-    wind_active = False
-    aw = -1  # active index of the wind error state
+    # bool() / int(): a loop-carried variable started from a literal would compile each callee it reaches twice
+    # (for the literal and for the plain type; docs/estimators.md, 'One compile per function')
+    air_ok = bool(False)  # the last airspeed update was accepted (reset_to_gps)
+    wind_active = bool(False)
+    aw = int(-1)  # active index of the wind error state
     for a in range(s.sel.shape[0]):
         if s.sel[a] == m.E_W:
             wind_active = True
@@ -413,13 +416,13 @@ def run_kernel(imu_gyro, imu_accel, ev_kind, ev_imu, ev_val, ev_var, op, op_dt, 
     t_now = -math.inf
     t_wind_observed = -math.inf
     last_row = imu_gyro.shape[0] - 1
-    n_out = 0
+    n_out = int(0)
     for step in range(op.shape[0]):
         code = op[step]
         if code == PROPAGATE:
             k = op_index[step]
             if acc[0] == 0.0:
-                w.x_cov[:] = x
+                linalg.copy_into(w.x_cov, x)
             m.propagate_nominal(x, imu_gyro[k], imu_accel[k], op_dt[step], s.gravity_m_s2)
             linalg.accumulate_inputs(acc, op_dt[step], imu_gyro[k], imu_accel[k])
         elif code == COVARIANCE:
@@ -436,7 +439,7 @@ def run_kernel(imu_gyro, imu_accel, ev_kind, ev_imu, ev_val, ev_var, op, op_dt, 
             t_wind_observed = wind_observed(kind, t, t_wind_observed)
             if kind == OUTPUT:
                 _check_health(x, P, x_safe, s.P0, w.zero_error, counters)
-                x_safe[:] = x
+                linalg.copy_into(x_safe, x)
                 _write_output(out_f, out_sd, n_out, t, x, P)
                 n_out += 1
                 continue

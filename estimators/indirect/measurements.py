@@ -11,16 +11,12 @@ from __future__ import annotations
 
 import math
 
-import numpy as np
 from numba import njit
 
 from estimators.core.full_state import mag_heading_innovation
 from estimators.core.rotations import dcm_into, rotate
 from estimators.indirect.model import E_BB, E_BG, E_BM, E_P, E_TH, E_V, E_W, X_BB, X_BG, X_BM, X_P, X_Q, X_V, X_W
 from estimators.inputs.records import AIRSPEED, BARO, GPS_POS, GPS_VEL, MAG, SIDESLIP, ZERO_VELOCITY
-
-#: Lever arm of the zero-velocity pseudo-measurement (the body origin) [m]; a global, compiled in as a constant.
-NO_LEVER_M = np.zeros(3)
 
 
 @njit(cache=True)
@@ -79,6 +75,15 @@ def h_gps_velocity(x, gyro_rad_s, lever_arm_b_m, axis, H):
     H[E_BG + 1] = rz * lx - rx * lz
     H[E_BG + 2] = rx * ly - ry * lx
     return x[X_V + axis] + rx * ux + ry * uy + rz * uz
+
+
+@njit(cache=True)
+def h_body_origin_velocity(x, axis, H):
+    """Velocity [m/s] NED of the body origin (the zero-velocity pseudo-measurement), component ``axis``:
+    ``h = v``, ``H_dv = e_axis^T``."""
+    H[:] = 0.0
+    H[E_V + axis] = 1.0
+    return x[X_V + axis]
 
 
 @njit(cache=True)
@@ -209,7 +214,6 @@ def measurement(x, kind, comp, values, field, lever_b, gyro, H):
             return h_course(x, H)
         return h_gps_velocity(x, gyro, lever_b, comp, H)
     if kind == ZERO_VELOCITY:
-        return h_gps_velocity(x, gyro, NO_LEVER_M, comp, H)
-    if kind == MAG:
-        return h_body_vector(x, field, comp, True, H)
-    return h_body_vector(x, values[3:6], comp, False, H)
+        return h_body_origin_velocity(x, comp, H)
+    with_mag_bias = kind == MAG  # a bool variable, not a literal per call: one compiled h_body_vector
+    return h_body_vector(x, field if with_mag_bias else values[3:6], comp, with_mag_bias, H)

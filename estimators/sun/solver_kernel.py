@@ -9,7 +9,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from estimators.core.linalg import cholesky_lower
+from estimators.core.linalg import cholesky_lower, copy_into
 
 #: Solver status codes (``SunSolution.status``) and their names (``status`` column of :func:`solve_sun_log`).
 STATUS_OK = 0
@@ -156,7 +156,7 @@ def _joint_fit(current, normals, sky_factor, lit, dark, sky_weight, sky_prior_a,
             b[p] += k_weight * k_prior_a * s[p]
             for q in range(3):
                 m[p, q] += k_weight * s[p] * s[q]
-    if not _spd_inverse(mat, 4):
+    if not _spd_inverse(mat, int(4)):  # int(): one compile for both sizes
         return condition, False
     for p in range(4):
         value = 0.0
@@ -195,7 +195,7 @@ def _initial_direction(current, normals, sky_factor, n_initial, flags, vec, mat)
             b[p] += normals[largest, p] * y
             for q in range(3):
                 m[p, q] += normals[largest, p] * normals[largest, q]
-    if not _spd_inverse(mat, 3):
+    if not _spd_inverse(mat, int(3)):
         return 0.0, False
     m_inv = mat[_INVERSE]
     for p in range(3):
@@ -343,7 +343,7 @@ def _refine(current, normals, sky_factor, st, k, flags, vec, mat):
                 moved += (s_new[p] - s[p]) ** 2
             if not use_k or moved < 1e-12:
                 break
-            s[:] = s_new
+            copy_into(s, s_new)
         worst, rss = _worst_row(current, normals, sky_factor, st, lit, dark, sigma, use_sky, sky_weight, use_k,
                                 k_weight, vec, mat)
         if worst == n_cells:  # the sky light differs from the log's: no prior for this epoch
@@ -359,9 +359,9 @@ def _refine(current, normals, sky_factor, st, k, flags, vec, mat):
             if lit_left < 3 or (lit_left + dark_left < 4 and not use_sky):
                 return STATUS_INCONSISTENT, k, np.nan, np.nan, 0
             excluded[worst] = True
-            s[:] = s_new
+            copy_into(s, s_new)
             continue
-        s[:] = s_new
+        copy_into(s, s_new)
         if not _classification_holds(normals, s, usable, lit, dark, st.cos_lit_min, st.cos_dark_max):
             continue
         again, n_faulty = _readmit(current, normals, sky_factor, st, sigma, flags, vec, mat)
@@ -484,24 +484,24 @@ def _solve_epoch(current, normals, sky_factor, st, s_out, cells_used, faulty, fl
         faulty[i] = False
     s_out[:] = np.nan
     if n_available < 3:
-        return _no_solution(STATUS_NO_DATA)
+        return _no_solution(int(STATUS_NO_DATA))  # int(): one compile, not one per status
     k, ok = _initial_direction(current, normals, sky_factor, st.n_initial, flags, vec, mat)
     if not ok:
-        return _no_solution(STATUS_ILL_CONDITIONED)
+        return _no_solution(int(STATUS_ILL_CONDITIONED))
     k = _screen(current, normals, sky_factor, st, k, flags, vec, mat)
     start_s, start_excluded = vec[_START_S], flags[_START_EXCLUDED]
-    start_s[:] = s
-    start_excluded[:] = excluded
+    copy_into(start_s, s)
+    copy_into(start_excluded, excluded)
     # 2./3.
-    best = _no_solution(STATUS_INCONSISTENT)
+    best = _no_solution(int(STATUS_INCONSISTENT))
     best_score = np.inf
     score_sigma = 0.0
     n_tries = 1
     attempt = 0
     while attempt < n_tries:
         if attempt > 0:  # 4. an alternative: the suspect excluded (and never re-admitted) from the start
-            s[:] = start_s
-            excluded[:] = start_excluded
+            copy_into(s, start_s)
+            copy_into(excluded, start_excluded)
             readmitted[:] = False
             excluded[suspects[attempt - 1]] = True
             readmitted[suspects[attempt - 1]] = True
@@ -526,9 +526,9 @@ def _solve_epoch(current, normals, sky_factor, st, s_out, cells_used, faulty, fl
             spread = max(m_inv[0, 0] + m_inv[1, 1] + m_inv[2, 2] - cov_along, 0.0)
             best = (STATUS_OK, k_fit, solution[3], rss, int(used.sum()), sigma * np.sqrt(spread / 2.0) / k_fit,
                     np.sqrt(m_inv[3, 3]), np.sqrt(cov_along))
-            s_out[:] = s[:3]
-            cells_used[:] = used
-            faulty[:] = fault
+            copy_into(s_out, s)
+            copy_into(cells_used, used)
+            copy_into(faulty, fault)
         attempt += 1
     return best
 

@@ -29,7 +29,7 @@ from typing import NamedTuple
 
 from numba import njit
 
-from estimators.core import reacquisition
+from estimators.core import linalg, reacquisition
 from estimators.core.recorder import N_SHARED_COUNTERS
 from estimators.inputs.records import GPS_POS, GPS_VEL
 from estimators.three_stage.stages import stage3_init_velocity
@@ -115,7 +115,7 @@ def gps_velocity_input(t, values, lpf_s, held, gps_vel, gps_acc):
             gps_acc[i] = _lowpass(gps_acc[i], (values[i] - gps_vel[i]) / dt_gps, dt_gps, lpf_s)
     else:
         gps_acc[:] = 0.0
-    gps_vel[:] = values[:3]
+    linalg.copy_into(gps_vel, values)
     return HeldInputs(held.va_m_s, held.va_t, held.height_m, held.height_t, held.vertical_speed_m_s, t,
                       held.gps_pos_t)
 
@@ -186,12 +186,12 @@ def stage3_start(values, variances, prm, x3, P3, gps, x3_safe, acc3):
     velocity from this ``GPS_VEL`` event, the other states and covariances initial (``prm.p3_0``); the last
     healthy state ``x3_safe`` is the start, the input sums ``acc3`` of its covariance start empty."""
     x3[:] = 0.0
-    P3[:, :] = prm.p3_0
+    linalg.copy_rows_into(P3, prm.p3_0, P3.shape[0])
     for i in range(2):
         x3[i] = gps.pos_ne[i]
         P3[i, i] = max(P3[i, i], gps.pos_var[i])
     stage3_init_velocity(values, variances, prm, x3, P3)
-    x3_safe[:] = x3
+    linalg.copy_into(x3_safe, x3)
     acc3[:] = 0.0
 
 
@@ -215,11 +215,11 @@ def gps_position_control(t, values, variances, stage3_on, reject_s, outage_s, he
     resets the position instead of fusing it. Returns (fuse it with
     :func:`~estimators.three_stage.stages.stage3_gps_position`, the new :class:`HeldInputs`)."""
     held = HeldInputs(held.va_m_s, held.va_t, held.height_m, held.height_t, held.vertical_speed_m_s, held.gps_vel_t, t)
-    gps.pos_ne[:] = values[:2]
-    gps.pos_var[:] = variances[:2]
+    linalg.copy_into(gps.pos_ne, values)
+    linalg.copy_into(gps.pos_var, variances)
     if not stage3_on:
         return False, held
-    if reacquisition.gps_control(gps.monitor, GPS_POS, t, reject_s, outage_s, counters):
+    if reacquisition.gps_control(gps.monitor, int(GPS_POS), t, reject_s, outage_s, counters):
         _reset_position(values, variances, x3, P3)
         return False, held
     return True, held
@@ -246,6 +246,6 @@ def gps_velocity_control(t, speed_m_s, stage3_on, min_ground_speed_m_s, fixed_wi
             reacquisition.gps_acquired(monitor, t)
             return GPS_START
         return GPS_NONE
-    if reacquisition.gps_control(monitor, GPS_VEL, t, reject_s, outage_s, counters):
+    if reacquisition.gps_control(monitor, int(GPS_VEL), t, reject_s, outage_s, counters):
         return GPS_RESET
     return GPS_FUSE

@@ -233,13 +233,13 @@ def _output_row(t, x1, P1, x2, P2, x3, P3, stage3_on, fixed_wing_nav, height, ve
         # heading corrected by the stage-3 deviation estimate (its correlation with stage 2 is not tracked)
         psi, _, dpsi_ddev = corrected_heading(x3, x2[0])
         row[O_YAW] = rotations.wrap_pi(psi)
-        row[O_YAW_STD] = math.sqrt(P2[0, 0] + linalg.quadratic_form(dpsi_ddev, P3, I_DEVIATION))
+        row[O_YAW_STD] = math.sqrt(P2[0, 0] + linalg.quadratic_form(dpsi_ddev, P3, int(I_DEVIATION)))
         c, s, vg = math.cos(x3[3]), math.sin(x3[3]), x3[2]
         row[O_VN] = vg * c
         row[O_VE] = vg * s
         # first-order propagation of the (V_g, chi) covariance to (v_n, v_e)
-        row[O_VN_STD] = math.sqrt(max(linalg.quadratic_form((c, -vg * s), P3, 2), 0.0))
-        row[O_VE_STD] = math.sqrt(max(linalg.quadratic_form((s, vg * c), P3, 2), 0.0))
+        row[O_VN_STD] = math.sqrt(max(linalg.quadratic_form((c, -vg * s), P3, int(2)), 0.0))
+        row[O_VE_STD] = math.sqrt(max(linalg.quadratic_form((s, vg * c), P3, int(2)), 0.0))
         row[O_WN] = x3[4]
         row[O_WE] = x3[5]
         row[O_WN_STD] = math.sqrt(P3[4, 4])
@@ -292,7 +292,9 @@ def run_kernel(op, op_value, op_index, imu_t, imu_gyro, imu_accel, ev_kind, ev_v
     """
     iv = Intervals(np.empty(3), np.empty(3), np.zeros(8), np.zeros(8), np.zeros(8), x1.copy(), x3.copy(),
                    np.zeros(3))
-    work = (_stage_work(2, 3, 3), _stage_work(1, 3, 3), _stage_work(x3.shape[0], 2, 6), _measurement_work())
+    # int(): one compiled _stage_work for the three stages, not one per literal size
+    work = (_stage_work(int(2), int(3), int(3)), _stage_work(int(1), int(3), int(3)),
+            _stage_work(x3.shape[0], int(2), int(6)), _measurement_work())
     gps = GpsWork(np.zeros(3), np.zeros(3), np.zeros(2), np.zeros(2), reacquisition.gps_monitor())
     _loop(op, op_value, op_index, imu_t, imu_gyro, imu_accel, ev_kind, ev_val, ev_var, prm,
           StageStates(x1, P1, x2, P2, x3, P3), HealthyStates(x1.copy(), x2.copy(), x3.copy()), iv, gps, work, out,
@@ -310,7 +312,9 @@ def _loop(op, op_value, op_index, imu_t, imu_gyro, imu_accel, ev_kind, ev_val, e
     gps_vel, gps_acc, gps_mon = gps.vel_ned, gps.acc_ned, gps.monitor
     held = held_inputs(prm.initial_height_m)
     row, variances = np.empty(out.shape[1]), np.empty(ev_var.shape[1])  # variances: raised to the model floor
-    stage3_on, n_out = False, 0
+    # bool() / int(): a loop-carried variable started from a literal would compile each callee it reaches twice
+    # (docs/estimators.md, 'One compile per function')
+    stage3_on, n_out = bool(False), int(0)
     reject_s, outage_s = prm.gps_reset_after_s, prm.gps_outage_reset_s  # T_rej, T_out of the re-acquisition rule
     heading_rejected_since = math.inf  # start of the current streak of gated-out heading vectors
     heading_var_reset = P2[0, 0]  # the alignment's heading variance, given to a re-acquired heading
@@ -325,9 +329,9 @@ def _loop(op, op_value, op_index, imu_t, imu_gyro, imu_accel, ev_kind, ev_val, e
                 f_b[i] = imu_accel[k, i]
             va = held.va_m_s if t - held.va_t < STALE_AFTER_S else 0.0  # stale: no centripetal term
             if acc1[0] == 0.0:
-                x1_start[:] = x1
+                linalg.copy_into(x1_start, x1)
             if stage3_on and acc3[0] == 0.0:
-                x3_start[:] = x3
+                linalg.copy_into(x3_start, x3)
                 attitude_start[0], attitude_start[1], attitude_start[2] = x1[0], x1[1], x2[0]
             propagate_states(dt, rates, f_b, va, prm, x1, x2, P2, x3, stage3_on)
             accumulate_intervals(acc_meas, acc1, acc3, stage3_on, dt, rates, f_b, va)

@@ -79,7 +79,7 @@ def body_vector_and_euler_jacobian(v_n, phi, theta, psi, h=None, jac=None):
     return h, jac
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")  # three call sites with a literal column: inlined, not three compiles
 def _cross_column(h, w0, w1, w2, jac, j):
     """Column ``j`` of ``jac`` = h x w."""
     jac[0, j] = h[1] * w2 - h[2] * w1
@@ -200,7 +200,8 @@ def stage2_h(yaw_rad, phi, theta, ref_n, h=None, jac=None):
         dh/d(phi, theta), used to inflate R by the stage-1 covariance (cascade consistency,
         docs/three_stage.md, 'Stage 2: heading').
     """
-    h, jac = body_vector_and_euler_jacobian(ref_n, phi, theta, yaw_rad, h, jac)
+    # a tuple as stage 1 passes: one compiled body_vector_and_euler_jacobian
+    h, jac = body_vector_and_euler_jacobian((ref_n[0], ref_n[1], ref_n[2]), phi, theta, yaw_rad, h, jac)
     return h, jac[:, 2:], jac[:, :2]
 
 

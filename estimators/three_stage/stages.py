@@ -215,7 +215,7 @@ def record(diag_f, diag_i, counters, t, sensor, component, nu, s_var, nis, accep
 def check_health(x, P, x_safe, P0, counters):
     """Divergence reset (non-finite state or covariance -> last healthy state, initial covariance)."""
     if linalg.is_healthy(x, P):
-        x_safe[:] = x
+        linalg.copy_into(x_safe, x)
     else:
         linalg.reset_filter(x, P, x_safe, P0)
         counters[C_RESETS] += 1
@@ -240,7 +240,7 @@ def _stage1_model(x1, yaw_rad, rates, va, accel_n, airspeed_model, gravity_m_s2,
         stage1_h_airspeed(x1, rates, va, gravity_m_s2, h, c)
     else:
         _, c_tilt = stage1_h_acceleration(x1, yaw_rad, accel_n, gravity_m_s2, h, jac)
-        c[:, :] = c_tilt
+        linalg.copy_rows_into(c, c_tilt, c.shape[0])
 
 
 @njit(cache=True, inline="always")
@@ -256,7 +256,7 @@ def stage1_update(t, f_mean, rates_mean, va, accel_n, prm, x1, P1, x2, w, mw, di
         nu = f_mean[axis] - h[axis]
         accepted, s_var, nis = linalg.scalar_update(P1, c[axis], nu, prm.accel_var[axis] + extra_var,
                                                       prm.accel_gate, w.dx, w.ph)
-        record(diag_f, diag_i, counters, t, ACCEL, axis, nu, s_var, nis, accepted)
+        record(diag_f, diag_i, counters, t, int(ACCEL), axis, nu, s_var, nis, accepted)
         if accepted:
             x1 += w.dx
             _stage1_model(x1, x2[0], rates_mean, va, accel_n, prm.airspeed_model, prm.gravity_m_s2, h, c,
@@ -278,6 +278,7 @@ def whitened_update(t, sensor, x, P, m, nu, H, R, gate_d2, w, mw, diag_f, diag_i
     batch update. Returns whether the vector passed the gate.
     """
     L, S, y = mw.L, mw.S, mw.y
+    sensor, m = int(sensor), int(m)  # plain int64: the callees compile once, not per inlined literal
     if not linalg.cholesky_lower(R, L, m, 0.0):
         L[:m, :m] = math.nan  # R not positive definite: NaN innovations, the vector is rejected below
     linalg.forward_solve(L, nu, m)
@@ -288,14 +289,14 @@ def whitened_update(t, sensor, x, P, m, nu, H, R, gate_d2, w, mw, diag_f, diag_i
         S[i, i] += 1.0
     if not linalg.cholesky_lower(S, L, m, 0.0):
         L[:m, :m] = math.nan
-    y[:m] = nu[:m]
+    linalg.copy_rows_into(y, nu, m)
     linalg.forward_solve(L, y, m)
     d2 = 0.0
     for i in range(m):
         d2 += y[i, 0] * y[i, 0]
     if not d2 <= gate_d2:
         for i in range(m):
-            record(diag_f, diag_i, counters, t, sensor, i, nu[i, 0], S[i, i], nu[i, 0] ** 2 / S[i, i], False)
+            record(diag_f, diag_i, counters, t, sensor, i, nu[i, 0], S[i, i], nu[i, 0] ** 2 / S[i, i], bool(False))
         return False
     for i in range(m):
         accepted, s_var, nis = linalg.scalar_update(P, H[i], nu[i, 0], 1.0, math.inf, w.dx, w.ph)
@@ -325,7 +326,7 @@ def stage2_update(t, kind, values, variances, prm, x1, P1, x2, P2, w, mw, diag_f
         ref = prm.mag_field_ned
         gate_d2 = prm.mag_gate_d2
     else:
-        z[:] = values[:3]
+        linalg.copy_into(z, values)
         ref = values[3:6]
         gate_d2 = prm.sun_gate_d2
     h, c, j_tilt = stage2_h(x2[0], x1[0], x1[1], ref, mw.h, mw.jac)
@@ -371,7 +372,7 @@ def stage3_fw_wind(t, va, vd_gps, prm, x2, P2, x3, P3, w, mw, diag_f, diag_i, co
     h, c = stage3_fw_h_wind(x3, vah, x2[0])
     for i in range(2):
         mw.nu[i, 0] = -h[i]
-        w.H[i, :] = c[i]
+        linalg.copy_into(w.H[i], c[i])
     R = mw.R
     R[:2, :2] = 0.0
     w.input_var[0], w.input_var[1] = prm.airspeed_var, P2[0, 0]
@@ -392,8 +393,8 @@ def stage3_gps_position(t, values, variances, prm, x3, P3, w, gps_mon, diag_f, d
         H[i] = 1.0
         nu = values[i] - x3[i]
         accepted, s_var, nis = linalg.scalar_update(P3, H, nu, variances[i], prm.gps_pos_gate, w.dx, w.ph)
-        record(diag_f, diag_i, counters, t, GPS_POS, i, nu, s_var, nis, accepted)
-        reacquisition.gps_record(gps_mon, True, i, t, accepted)
+        record(diag_f, diag_i, counters, t, int(GPS_POS), i, nu, s_var, nis, accepted)
+        reacquisition.gps_record(gps_mon, bool(True), i, t, accepted)
         if accepted:
             x3 += w.dx
     if prm.fixed_wing_nav:
@@ -422,8 +423,8 @@ def stage3_gps_velocity(t, values, variances, prm, x3, P3, w, gps_mon, diag_f, d
                 # eq 9 corrected (docs/three_stage.md, 'Corrections to the paper')
                 r_var = 0.5 * (variances[0] + variances[1]) / (speed * speed)
             accepted, s_var, nis = linalg.scalar_update(P3, H, nu, r_var, prm.gps_vel_gate, w.dx, w.ph)
-            record(diag_f, diag_i, counters, t, GPS_VEL, 3 + comp, nu, s_var, nis, accepted)
-            reacquisition.gps_record(gps_mon, False, comp, t, accepted)
+            record(diag_f, diag_i, counters, t, int(GPS_VEL), 3 + comp, nu, s_var, nis, accepted)
+            reacquisition.gps_record(gps_mon, bool(False), comp, t, accepted)
             if accepted:
                 x3 += w.dx
                 x3[3] = rotations.wrap_pi(x3[3])
@@ -439,8 +440,8 @@ def stage3_gps_velocity(t, values, variances, prm, x3, P3, w, gps_mon, diag_f, d
             H[:] = 0.0
             H[2 + comp] = 1.0
         accepted, s_var, nis = linalg.scalar_update(P3, H, nu, variances[comp], prm.gps_vel_gate, w.dx, w.ph)
-        record(diag_f, diag_i, counters, t, GPS_VEL, comp, nu, s_var, nis, accepted)
-        reacquisition.gps_record(gps_mon, False, comp, t, accepted)
+        record(diag_f, diag_i, counters, t, int(GPS_VEL), comp, nu, s_var, nis, accepted)
+        reacquisition.gps_record(gps_mon, bool(False), comp, t, accepted)
         if accepted:
             x3 += w.dx
             if prm.fixed_wing_nav:
