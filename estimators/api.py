@@ -259,19 +259,28 @@ class _ThreeStageBias:
 
     def config(self) -> EstimatorConfig:
         """The three-stage settings with the in-flight bias, or as given when it is not needed or not trusted
-        (:func:`estimators.inflight_bias.trusted_bias_states`, converged below
-        :data:`calib.figures.MAX_ACCEL_BIAS_STD_M_S2` on every axis)."""
+        (:func:`estimators.inflight_bias.trusted_bias_states`). Per axis: an axis whose posterior standard
+        deviation is above :data:`calib.figures.MAX_ACCEL_BIAS_STD_M_S2` (not converged) is left at zero; the
+        horizontal axes are what tilt the levelling, and a z bias with a random walk (which never converges as
+        far) must not keep them out."""
         if not self.needed:
             return self._base
         run = self._run.result() if self.shared else run_indirect(self._log, self._inputs, self._base)
         states = trusted_bias_states(run)
-        if states is None or not all(math.isfinite(v) and v <= MAX_ACCEL_BIAS_STD_M_S2
-                                     for v in states.accel_bias_std_m_s2):
+        if states is None:
             return self._base
+        converged = [math.isfinite(v) and v <= MAX_ACCEL_BIAS_STD_M_S2 for v in states.accel_bias_std_m_s2]
+        if not any(converged):
+            return self._base
+        bias = tuple(b if ok else 0.0 for b, ok in zip(states.accel_bias_m_s2, converged, strict=True))
+        use = "subtracted from the specific force (the error-state filter's final bias states in this replay"
+        left = [f"{axis} (sigma {std:.3f} m/s^2)" for axis, ok, std in zip("xyz", converged,
+                                                                        states.accel_bias_std_m_s2, strict=True)
+                if not ok]
+        use += f"; not converged, left at zero: {', '.join(left)})" if left else ")"
         calibrated = self._base.calibrated
-        use = "subtracted from the specific force (the error-state filter's final bias states in this replay)"
         return replace(self._base, calibrated=replace(
-            calibrated, accel_bias_m_s2=states.accel_bias_m_s2,
+            calibrated, accel_bias_m_s2=bias,
             provenance=(*calibrated.provenance, (FIGURES.accel_bias.name, SOURCE_INFLIGHT_BIAS, use))))
 
 

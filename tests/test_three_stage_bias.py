@@ -10,7 +10,7 @@ import math
 import numpy as np
 import pytest
 
-from calib.figures import SOURCE_INFLIGHT_BIAS
+from calib.figures import MAX_ACCEL_BIAS_STD_M_S2, SOURCE_INFLIGHT_BIAS
 from estimators.api import run_estimators
 from estimators.config import EstimatorConfig
 from estimators.evaluation import evaluate
@@ -65,6 +65,27 @@ def test_removing_the_bias_levels_roll_and_pitch(calm, default_replay):
     assert math.hypot(rms_before["roll_deg"], rms_before["pitch_deg"]) > 0.8, "a draw that tilts the filter visibly"
     assert math.hypot(rms_after["roll_deg"], rms_after["pitch_deg"]) < 0.6 * math.hypot(rms_before["roll_deg"],
                                                                                         rms_before["pitch_deg"])
+
+
+def test_an_axis_that_has_not_converged_is_left_at_zero_and_the_others_still_level(calm, default_replay):
+    # a z bias random walk (a fixed-wing's cross-axis coupling, evaluation.SIM_ACCEL_BIAS_RW_Z) keeps the z bias
+    # sigma above the convergence limit; the horizontal axes, which tilt the levelling, are still removed
+    noise = dataclasses.replace(EstimatorConfig().noise, accel_bias_rw_z_m_s3_sqrt_hz=0.05)
+    replay = run_estimators(calm.log, estimators=("three_stage", "full_state_indirect"), rate_hz=5.0,
+                            config=EstimatorConfig(noise=noise))
+    final = replay.reports["full_state_indirect"].details["final_state_std"]
+    assert final["dbaz"] > MAX_ACCEL_BIAS_STD_M_S2 >= max(final["dbax"], final["dbay"]), final
+    details = replay.reports["three_stage"].details
+    removed = details["accel_bias_removed_m_s2"]
+    estimated = replay.reports["full_state_indirect"].details["final_state"]
+    assert removed == [estimated["bax"], estimated["bay"], 0.0] or tuple(removed) == (estimated["bax"],
+                                                                                       estimated["bay"], 0.0)
+    uses = {item["figure"]: item["use"] for item in details["calibration"]}
+    assert "not converged, left at zero: z (sigma" in uses["accel_bias"]
+    rms = evaluate(replay.states, calm.log).rms().loc["three_stage"]
+    rms_default = evaluate(default_replay.states, calm.log).rms().loc["three_stage"]
+    assert math.hypot(rms["roll_deg"], rms["pitch_deg"]) < 1.2 * math.hypot(rms_default["roll_deg"],
+                                                                            rms_default["pitch_deg"])
 
 
 def test_no_gps_no_bias_removed(calm):
